@@ -1,0 +1,1 @@
+"""ROS-free numerics: exact discretisation, delay buffers, compiled model expressions."""

@@ -1,0 +1,26 @@
+"""Plants used for examples, simulation and bag generation (ROS-free).
+
+``MODELS`` maps a model name to its :class:`~fto_ros.models.simulate.ModelSpec`.
+To add a plant, write ``fto_ros/models/<name>.py`` defining ``SPEC`` and add one
+entry below.
+"""
+from __future__ import annotations
+
+from . import dc_motor
+from .simulate import ModelSpec, SimulationResult, simulate
+
+MODELS: dict[str, ModelSpec] = {
+    dc_motor.SPEC.name: dc_motor.SPEC,
+}
+
+
+def get_model(name: str) -> ModelSpec:
+    """The registered spec ``name``, or KeyError whose message lists the known models."""
+    try:
+        return MODELS[name]
+    except KeyError:
+        raise KeyError(f"unknown model {name!r}; known models: {', '.join(sorted(MODELS))}") \
+            from None
+
+
+__all__ = ["MODELS", "ModelSpec", "SimulationResult", "get_model", "simulate"]

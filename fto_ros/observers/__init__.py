@@ -1,0 +1,25 @@
+"""Observer families, one module each, and the registry ``observer.type`` -> class.
+
+ROS-free: nothing here imports rclpy.
+"""
+from __future__ import annotations
+
+from .base import ConfigError, Observer, Param
+from .luenberger import LuenbergerObserver
+# single_delay: being written
+
+REGISTRY: dict[str, type[Observer]] = {
+    cls.TYPE: cls for cls in (LuenbergerObserver,)
+}
+
+
+def observer_class(type_name: str) -> type[Observer]:
+    """The class registered as ``type_name``, or ConfigError listing the known ones."""
+    try:
+        return REGISTRY[type_name]
+    except KeyError:
+        raise ConfigError("observer.type", f"unknown observer {type_name!r}; known: "
+                          + ", ".join(sorted(REGISTRY))) from None
+
+
+__all__ = ["REGISTRY", "ConfigError", "Observer", "Param", "observer_class"]

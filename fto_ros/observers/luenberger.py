@@ -1,0 +1,142 @@
+"""The baseline a user would pick instead: a Luenberger observer with output injection.
+
+Plant ``x' = A x + B u + F(y, u)``, ``y = C x``, where F holds the known terms
+that depend on the measured output and the input only (for the DC motor,
+``-a1 sin(q)``).  Observer ``x_hat' = A x_hat + B u + F(y, u) + L (y - C x_hat)``:
+the error obeys ``e' = (A - L C) e``, asymptotically, never in a guaranteed time.
+
+L comes from pole placement (``design: poles``) or from the steady-state
+Kalman filter (``design: kalman``, continuous algebraic Riccati equation with
+diagonal process and measurement noise intensities).  The linear part is
+integrated exactly (first-order hold of y and F between samples).
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.linalg import solve_continuous_are
+from scipy.signal import place_poles
+
+from ..core.discretize import ExactStepper
+from ..core.expressions import VectorFunction
+from ..core.linear import observability_rank
+from .base import ConfigError, Observer, Param, SampleRejected, matrix
+
+P = "luenberger."
+
+
+class LuenbergerObserver(Observer):
+    TYPE = "luenberger"
+    DESCRIPTION = "Luenberger / steady-state Kalman baseline (asymptotic convergence only)"
+    HEALTH_NAME = "slowest observer pole (1/s)"
+    PARAMS = (
+        Param("n_states", "int", 1, "plant order n", min=1, max=64),
+        Param("n_outputs", "int", 1, "number of measured outputs p", min=1, max=64),
+        Param("n_inputs", "int", 0, "number of known inputs m (0: no input topic needed)", min=0, max=64),
+        Param("A", "double_array", None, "n x n state matrix, row-major"),
+        Param("B", "double_array", [], "n x m input matrix, row-major (empty: zeros)"),
+        Param("C", "double_array", None, "p x n output matrix, row-major"),
+        Param("F", "string_array", [], "n known terms in y0.. and u0.. (empty: zeros), e.g. '-35*sin(y0)'"),
+        Param("design", "string", "poles", "gain design", choices=("poles", "kalman")),
+        Param("poles", "double_array", [], "n distinct negative real observer poles (design: poles)"),
+        Param("process_noise", "double_array", [], "n diagonal process noise intensities (design: kalman)",
+              min=0.0),
+        Param("measurement_noise", "double_array", [], "p diagonal measurement noise intensities "
+              "(design: kalman)", min=0.0),
+        Param("input_hold", "string", "zoh", "how u behaves between samples", choices=("zoh", "foh")),
+        Param("state_names", "string_array", [], "names of the n states (empty: x0, x1, ...)"),
+    )
+
+    def __init__(self, cfg: dict):
+        n, p, m = cfg["n_states"], cfg["n_outputs"], cfg["n_inputs"]
+        self.n_states, self.n_outputs, self.n_inputs = n, p, m
+        A = matrix(cfg, "A", n, n, P)
+        C = matrix(cfg, "C", p, n, P)
+        B = np.zeros((n, m)) if not cfg["B"] else matrix(cfg, "B", n, m, P)
+        self.F = VectorFunction(cfg["F"] or ["0"] * n, p, m, P + "F", length=n)
+        if observability_rank(A, C) < n:
+            raise ConfigError(P + "C", f"(A, C) is not observable: the observability matrix has rank "
+                              f"{observability_rank(A, C)} < n = {n}")
+        if cfg["design"] == "poles":
+            poles = np.asarray(cfg["poles"], dtype=float)
+            if poles.size != n:
+                raise ConfigError(P + "poles", f"expected {n} poles, got {poles.size}")
+            if np.any(poles >= 0):
+                raise ConfigError(P + "poles", f"all poles must be negative, got {poles.tolist()}")
+            if p == 1 and len(set(poles.tolist())) < n:
+                raise ConfigError(P + "poles", "with one output the poles must be distinct")
+            try:
+                L = place_poles(A.T, C.T, poles).gain_matrix.T
+            except ValueError as exc:
+                raise ConfigError(P + "poles", f"cannot place {poles.tolist()}: {exc}") from None
+        else:
+            q = np.asarray(cfg["process_noise"], dtype=float)
+            r = np.asarray(cfg["measurement_noise"], dtype=float)
+            if q.size != n:
+                raise ConfigError(P + "process_noise", f"expected {n} values, got {q.size}")
+            if r.size != p or np.any(r <= 0):
+                raise ConfigError(P + "measurement_noise", f"expected {p} positive values, got {r.tolist()}")
+            try:
+                Pc = solve_continuous_are(A.T, C.T, np.diag(q), np.diag(r))
+            except (ValueError, np.linalg.LinAlgError) as exc:
+                raise ConfigError(P + "process_noise", f"the Riccati equation has no stabilising "
+                                  f"solution ({exc}); is (A, sqrt(Q)) stabilisable?") from None
+            L = Pc @ C.T @ np.diag(1.0 / r)
+        self.L = L
+        self.A, self.B, self.C = A, B, C
+        Acl = A - L @ C
+        eig = np.linalg.eigvals(Acl)
+        if np.max(eig.real) >= 0:
+            raise ConfigError(P + "design", f"A - L C is not Hurwitz (eigenvalues {eig})")
+        self.closed_loop_poles = eig
+        # w = [u; F(y, u); y]
+        self.stepper = ExactStepper(Acl, np.hstack([B, np.eye(n), L]))
+        self.foh_input = cfg["input_hold"] == "foh"
+        self.state_names = cfg["state_names"] or [f"x{i}" for i in range(n)]
+        if len(self.state_names) != n:
+            raise ConfigError(P + "state_names", f"expected {n} names, got {len(self.state_names)}")
+        self._x = np.zeros(n)
+        self._t = self._y = self._u = None
+        self._residual = float("nan")
+
+    # -- protocol ---------------------------------------------------------
+    def reset(self, t0, x0_hat=None):
+        self._x = np.zeros(self.n_states) if x0_hat is None else np.array(x0_hat, dtype=float)
+        self._t = None
+        self._t0 = t0
+
+    def update(self, t, y, u):
+        y = np.asarray(y, dtype=float)
+        u = np.asarray(u, dtype=float)
+        if self._t is not None:
+            u_end = u if self.foh_input else self._u
+            w0 = np.concatenate((self._u, self.F(self._y, self._u), self._y))
+            w1 = np.concatenate((u_end, self.F(y, u_end), y))
+            x = self.stepper.step(self._x, w0, w1, t - self._t)
+            if not np.all(np.isfinite(x)):
+                raise SampleRejected("non_finite_estimate")
+            self._x = x
+        self._t, self._y, self._u = t, y, u
+        self._residual = float(np.linalg.norm(y - self.C @ self._x))
+
+    @property
+    def estimate(self):
+        return self._x
+
+    @property
+    def guaranteed_time(self):
+        return float("inf")
+
+    @property
+    def output_residual(self):
+        return self._residual
+
+    @property
+    def health(self):
+        return float(np.max(self.closed_loop_poles.real))
+
+    def diagnostics(self):
+        return {
+            "observer gain L": np.array2string(self.L.ravel(), precision=4),
+            "closed-loop poles": ", ".join(f"{z:.4g}" for z in self.closed_loop_poles),
+            "guarantee": "none (asymptotic)",
+        }

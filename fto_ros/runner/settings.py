@@ -1,0 +1,162 @@
+"""Every parameter that is not an observer's own, and reading a ROS 2 params file.
+
+Shared by the live node (which declares these as ROS parameters) and the
+replay harness (which reads the same YAML file), so one params file drives
+both and a typo is refused the same way by both.  ROS-free.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, Mapping
+
+import yaml
+
+from ..core.errors import ConfigError
+from ..observers import REGISTRY, observer_class
+from ..observers.base import Param, resolve
+
+FIELDS = ("position", "velocity", "effort")
+
+#: runner and I/O parameters (full ROS names); node-only ones say so
+SETTINGS: tuple[Param, ...] = (
+    Param("observer.type", "string", None, "observer family: " + ", ".join(sorted(REGISTRY)),
+          choices=tuple(sorted(REGISTRY))),
+    Param("observer.initial_estimate", "double_array", [],
+          "x_hat at start-up and after every reset, plant coordinates (empty: the observer's default)"),
+    Param("source", "string", "topics", "where y and u come from: 'topics' (measured_output + input "
+          "Float64MultiArray) or 'joint_states' (sensor_msgs/JointState)", choices=("topics", "joint_states")),
+    Param("topics.measured_output", "string", "measured_output", "Float64MultiArray y topic"),
+    Param("topics.input", "string", "input", "Float64MultiArray u topic (unused when the observer has no input)"),
+    Param("topics.joint_states", "string", "joint_states", "JointState source topic (source: joint_states)"),
+    Param("topics.true_state", "string", "true_state", "ground-truth Float64MultiArray topic "
+          "(replay only: compared with the estimate)"),
+    Param("joint_states.output_joints", "string_array", [], "joints whose field gives y, in order"),
+    Param("joint_states.output_field", "string", "position", "JointState field giving y", choices=FIELDS),
+    Param("joint_states.input_joints", "string_array", [], "joints whose field gives u, in order"),
+    Param("joint_states.input_field", "string", "effort", "JointState field giving u", choices=FIELDS),
+    Param("estimated_joint_states.joint_names", "string_array", [],
+          "joints of the published estimated_joint_states (empty: not published)"),
+    Param("estimated_joint_states.position_states", "int_array", [],
+          "per joint, the state index giving its position (-1: none)", min=-1),
+    Param("estimated_joint_states.velocity_states", "int_array", [],
+          "per joint, the state index giving its velocity (-1: none)", min=-1),
+    Param("estimated_joint_states.effort_states", "int_array", [],
+          "per joint, the state index giving its effort (-1: none)", min=-1),
+    Param("input.timeout", "double", 0.5, "a sample whose latest input is older than this (s) is "
+          "rejected as 'stale_input'", min=1e-6, read_only=False),
+    Param("time.max_gap", "double", 0.5, "a gap between samples longer than this (s) restarts the "
+          "observer at the new sample", min=1e-6, read_only=False),
+    Param("time.reset_on_jump", "bool", True, "restart the observer when time jumps backwards by more "
+          "than time.jump_threshold (bag looping, sim time reset); else such samples are rejected",
+          read_only=False),
+    Param("time.jump_threshold", "double", 0.5, "backward jump (s) treated as a time reset",
+          min=0.0, read_only=False),
+    Param("time.future_tolerance", "double", 0.5, "node only: JointState stamps further than this (s) "
+          "ahead of the node clock are rejected as 'future_stamp'", min=0.0, read_only=False),
+    Param("convergence.residual_threshold", "double", 0.1, "after the guaranteed time, an output "
+          "residual above this (units of y) reports 'diverging'", min=0.0, read_only=False),
+    Param("diagnostics.period", "double", 1.0, "node only: /diagnostics period (s)", min=0.01),
+    Param("diagnostics.expected_rate", "double", 0.0, "expected measurement rate (Hz) for the rate "
+          "check; 0 disables it", min=0.0, read_only=False),
+    Param("diagnostics.hardware_id", "string", "", "node only: hardware_id in /diagnostics"),
+    Param("qos.depth", "int", 100, "node only: subscription queue depth (best effort, keep last)",
+          min=1, max=100000),
+)
+
+#: ROS's own parameters that may appear in a params file
+ROS_BUILTIN = ("use_sim_time", "start_type_description_service")
+
+
+def load_params_file(path: str | Path, node_name: str | None = None) -> dict[str, Any]:
+    """The flat ``{dotted.name: value}`` parameters of one node block of a ROS 2 params file.
+
+    The block is the one named ``node_name`` (with or without leading ``/``), or
+    ``/**``, or the only block in the file.  ConfigError for a missing or
+    malformed file.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError("params file", f"{p} does not exist or is not a file")
+    try:
+        doc = yaml.safe_load(p.read_text())
+    except yaml.YAMLError as exc:
+        raise ConfigError("params file", f"{p} is not valid YAML: {exc}") from None
+    if not isinstance(doc, dict) or not doc:
+        raise ConfigError("params file", f"{p} must map a node name to 'ros__parameters'")
+    blocks = {str(k).lstrip("/"): v for k, v in doc.items()}
+    if node_name and node_name.lstrip("/") in blocks:
+        block = blocks[node_name.lstrip("/")]
+    elif "**" in blocks:
+        block = blocks["**"]
+    elif len(blocks) == 1:
+        block = next(iter(blocks.values()))
+    else:
+        raise ConfigError("params file", f"{p} has blocks {sorted(blocks)}; none is for node "
+                          f"{node_name!r}")
+    if not isinstance(block, dict) or not isinstance(block.get("ros__parameters"), dict):
+        raise ConfigError("params file", f"{p}: the node block needs a 'ros__parameters' mapping")
+    return flatten(block["ros__parameters"])
+
+
+def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """``{'a': {'b': 1}}`` -> ``{'a.b': 1}`` (ROS 2's nested parameter names)."""
+    out: dict[str, Any] = {}
+    for key, value in tree.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            out.update(flatten(value, name + "."))
+        else:
+            out[name] = value
+    return out
+
+
+def split(flat: Mapping[str, Any]) -> tuple[dict[str, Any], type, dict[str, Any]]:
+    """(typed settings, observer class, typed observer config) from flat parameters.
+
+    Sections of other registered observers are ignored (one file may carry
+    several); any other unknown name is refused.
+    """
+    known = {p.name for p in SETTINGS}
+    own = {k: v for k, v in flat.items() if k in known}
+    type_name = own.get("observer.type")
+    if type_name is None:
+        raise ConfigError("observer.type", "missing: say which observer to run (one of "
+                          + ", ".join(sorted(REGISTRY)) + ")")
+    cls = observer_class(type_name)
+    section = cls.TYPE + "."
+    obs_values = {k[len(section):]: v for k, v in flat.items() if k.startswith(section)}
+    for k in flat:
+        if k in known or k.startswith(section) or k in ROS_BUILTIN:
+            continue
+        if k.split(".", 1)[0] in REGISTRY:
+            continue
+        raise ConfigError(k, "unknown parameter (a typo? see the README's parameter list)")
+    settings = resolve(SETTINGS, own)
+    obs_cfg = resolve(cls.PARAMS, obs_values, prefix=section)
+    return settings, cls, obs_cfg
+
+
+def check_settings(settings: Mapping[str, Any], n_states: int, n_outputs: int, n_inputs: int) -> None:
+    """Cross-checks of the I/O settings against the observer's dimensions."""
+    x0 = settings["observer.initial_estimate"]
+    if x0 and len(x0) != n_states:
+        raise ConfigError("observer.initial_estimate", f"expected {n_states} values, got {len(x0)}")
+    if settings["source"] == "joint_states":
+        if len(settings["joint_states.output_joints"]) != n_outputs:
+            raise ConfigError("joint_states.output_joints", f"expected {n_outputs} joint name(s) "
+                              f"(one per output), got {settings['joint_states.output_joints']}")
+        if len(settings["joint_states.input_joints"]) != n_inputs:
+            raise ConfigError("joint_states.input_joints", f"expected {n_inputs} joint name(s) "
+                              f"(one per input), got {settings['joint_states.input_joints']}")
+    names = settings["estimated_joint_states.joint_names"]
+    for field in FIELDS:
+        key = f"estimated_joint_states.{field}_states"
+        idx = settings[key]
+        if idx and len(idx) != len(names):
+            raise ConfigError(key, f"expected one index per joint ({len(names)}), got {len(idx)}")
+        bad = [i for i in idx if i >= n_states]
+        if bad:
+            raise ConfigError(key, f"state index {bad[0]} out of range (n = {n_states})")
+    if not math.isfinite(settings["time.max_gap"]):
+        raise ConfigError("time.max_gap", "must be finite")
