@@ -6,10 +6,10 @@ from __future__ import annotations
 
 from .base import ConfigError, Observer, Param
 from .luenberger import LuenbergerObserver
-# single_delay: being written
+from .single_delay import SingleDelayObserver
 
 REGISTRY: dict[str, type[Observer]] = {
-    cls.TYPE: cls for cls in (LuenbergerObserver,)
+    cls.TYPE: cls for cls in (SingleDelayObserver, LuenbergerObserver)
 }
 
 

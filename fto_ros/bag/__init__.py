@@ -1,0 +1,16 @@
+"""rosbag2 (MCAP) file I/O with rosbags: no rclpy, no ROS install needed.
+
+- :class:`BagWriter` writes ``Float64MultiArray``, ``JointState``, ``Clock`` and
+  ``DiagnosticArray`` messages from plain Python values.
+- :class:`BagReader` / :func:`read_messages` yield ``(topic, t_ns, msg)`` in
+  log-time order; :func:`list_topics` / :func:`bag_info` summarise a bag.
+- Every failure raises :class:`BagError` naming the path and the problem.
+"""
+from __future__ import annotations
+
+from .reader import (BagError, BagInfo, BagReader, TopicInfo, bag_info, list_topics,
+                     read_messages)
+from .writer import BagWriter
+
+__all__ = ["BagError", "BagInfo", "BagReader", "BagWriter", "TopicInfo", "bag_info",
+           "list_topics", "read_messages"]

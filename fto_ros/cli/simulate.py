@@ -1,0 +1,276 @@
+"""``fto-simulate``: simulate a plant from ``fto_ros.models`` and record a rosbag2 (MCAP) bag.
+
+Usage::
+
+    fto-simulate MODEL --out BAG [--duration S] [--rate HZ] [--noise SIGMA]
+                 [--uncertainty] [--seed N]
+                 [--sample-times FILE | --sparse-min S --sparse-max S] [--overwrite]
+
+Topics (``SYS`` = the model name, e.g. ``dc_motor``):
+
+- ``/SYS/input`` (Float64MultiArray): the held input ``u_k``, at the base rate.
+- ``/SYS/measured_output`` (Float64MultiArray): measured ``y`` (with noise), at
+  the measurement instants.
+- ``/SYS/joint_states`` (JointState): the same measurement as joint positions
+  (header stamp = sample time, velocity and effort empty), for models whose
+  outputs are joint positions.
+- ``/SYS/true_state`` (Float64MultiArray): the true state, at the base rate
+  *and* at every measurement instant (so ground truth exists wherever an
+  estimate can be produced).
+- ``/clock`` (rosgraph_msgs/Clock): at every instant where anything is published.
+
+The log time of every message is its sample time, ``round(t * 1e9)`` ns with
+``t = 0`` at the start of the simulation (MCAP and rosbag2 accept 0).  Within
+one instant the order is clock, input, true_state, measured_output, joint_states.
+
+The simulation settings (model, parameters, initial state, input profile,
+noise, uncertainty, sampling, seed, integrator) are stored as JSON in the bag's
+metadata.yaml ``custom_data`` under the key ``fto_ros.simulation``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from .. import __version__
+from ..bag import BagError, BagWriter
+from ..models import MODELS
+from ..models.simulate import quantize_ns, simulate, sparse_instants, to_ns, uniform_grid
+
+PROG = "fto-simulate"
+#: metadata.yaml custom_data key holding the simulation settings (JSON)
+METADATA_KEY = "fto_ros.simulation"
+RTOL, ATOL, METHOD = 1e-11, 1e-12, "DOP853"
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(value) or value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
+    return value
+
+
+def _nonneg_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(value) or value < 0:
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text!r}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``fto-simulate``."""
+    models = ", ".join(f"{name} ({spec.description})" for name, spec in sorted(MODELS.items()))
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description="Simulate a plant and record a rosbag2 (MCAP) bag with its measured "
+                    "output, input, joint_states, ground truth and /clock.",
+        epilog=f"models: {models}")
+    parser.add_argument("model", metavar="MODEL", help=f"plant to simulate; one of: "
+                        f"{', '.join(sorted(MODELS))}")
+    parser.add_argument("--out", required=True, metavar="BAG",
+                        help="output bag directory (must not exist unless --overwrite)")
+    parser.add_argument("--duration", type=_positive_float, default=10.0, metavar="S",
+                        help="simulated time in seconds (default 10)")
+    parser.add_argument("--rate", type=_positive_float, default=1000.0, metavar="HZ",
+                        help="base rate of input, ground truth and clock, and of the "
+                             "measurements unless sparse (default 1000)")
+    parser.add_argument("--noise", type=_nonneg_float, default=0.0, metavar="SIGMA",
+                        help="std. deviation of Gaussian measurement noise on every output "
+                             "(default 0: exact measurements)")
+    parser.add_argument("--uncertainty", action="store_true",
+                        help="add the model's default process uncertainty delta1(t)")
+    parser.add_argument("--seed", type=int, default=0, metavar="N",
+                        help="seed of the noise and of the sparse sampling (default 0)")
+    parser.add_argument("--sample-times", metavar="FILE",
+                        help="measurement instants in seconds (whitespace/comma separated, "
+                             "'#' comments), instead of the base rate")
+    parser.add_argument("--sparse-min", type=_positive_float, metavar="S",
+                        help="irregular measurements: smallest gap between instants")
+    parser.add_argument("--sparse-max", type=_positive_float, metavar="S",
+                        help="irregular measurements: largest gap between instants")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace BAG if it exists (only if it is a bag directory)")
+    return parser
+
+
+def read_sample_times(path: str) -> np.ndarray:
+    """Parse a file of instants in seconds (whitespace/comma separated, '#' comments)."""
+    text = Path(path).read_text()
+    tokens = []
+    for line in text.splitlines():
+        line = line.split("#", 1)[0].replace(",", " ")
+        tokens.extend(line.split())
+    try:
+        return np.array([float(tok) for tok in tokens], dtype=float)
+    except ValueError as err:
+        raise ValueError(f"{path}: not a list of numbers ({err})") from None
+
+
+def _measurement_instants(args, parser, base: np.ndarray,
+                          rng: np.random.Generator) -> tuple[np.ndarray, dict]:
+    """Measurement instants and their description for the metadata."""
+    sparse = args.sparse_min is not None or args.sparse_max is not None
+    if sparse and args.sample_times:
+        parser.error("--sample-times and --sparse-min/--sparse-max are mutually exclusive")
+    if sparse:
+        if args.sparse_min is None or args.sparse_max is None:
+            parser.error("--sparse-min and --sparse-max must be given together")
+        if args.sparse_min > args.sparse_max:
+            parser.error(f"--sparse-min ({args.sparse_min}) must be <= --sparse-max "
+                         f"({args.sparse_max})")
+        t = sparse_instants(args.duration, args.sparse_min, args.sparse_max, rng)
+        return t, {"mode": "sparse", "t_min": args.sparse_min, "t_max": args.sparse_max,
+                   "description": "t_0 = 0, t_{j+1} - t_j ~ uniform[t_min, t_max] "
+                                  "(integer ns), seeded"}
+    if args.sample_times:
+        try:
+            t = read_sample_times(args.sample_times)
+        except (OSError, ValueError) as err:
+            parser.error(f"--sample-times: {err}")
+        if t.size == 0:
+            parser.error(f"--sample-times: {args.sample_times} holds no instants")
+        t = quantize_ns(t)
+        if np.any(np.diff(t) <= 0):
+            parser.error(f"--sample-times: instants in {args.sample_times} must be strictly "
+                         f"increasing (at nanosecond resolution)")
+        if t[0] < 0 or t[-1] > base[-1]:
+            parser.error(f"--sample-times: instants must lie in [0, {args.duration}] s, got "
+                         f"[{t[0]}, {t[-1]}]")
+        return t, {"mode": "file", "file": os.path.abspath(args.sample_times)}
+    return base, {"mode": "uniform", "rate": args.rate}
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``fto-simulate``; returns the exit code (argparse errors exit with 2)."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    spec = MODELS.get(args.model)
+    if spec is None:
+        parser.error(f"unknown model {args.model!r}; known models: {', '.join(sorted(MODELS))}")
+    if args.duration * args.rate > 5e7:
+        parser.error(f"--duration x --rate = {args.duration * args.rate:.3g} samples is too many "
+                     f"(limit 5e7)")
+    if args.noise > 0 and spec.p == 0:
+        parser.error(f"model {spec.name} has no outputs to add noise to")
+    if args.uncertainty and spec.uncertainty is None:
+        parser.error(f"model {spec.name} defines no uncertainty")
+    out = Path(args.out)
+    if (out.exists() or out.is_symlink()) and not args.overwrite:
+        print(f"{PROG}: error: {out}: output exists already (use --overwrite)", file=sys.stderr)
+        return 1
+
+    noise_ss, sample_ss = np.random.SeedSequence(args.seed).spawn(2)
+    noise_rng, sample_rng = np.random.default_rng(noise_ss), np.random.default_rng(sample_ss)
+    base = uniform_grid(args.duration, args.rate)
+    t_meas, sampling = _measurement_instants(args, parser, base, sample_rng)
+    t_all = np.union1d(base, t_meas)
+
+    started = time.perf_counter()
+    f = spec.make_rhs(dict(spec.default_params))
+    delta1 = spec.uncertainty if args.uncertainty else None
+    try:
+        sim = simulate(f, spec.default_x0, t_all, spec.default_input, t_input=base,
+                       delta1=delta1, method=METHOD, rtol=RTOL, atol=ATOL)
+    except ValueError as err:
+        print(f"{PROG}: error: simulation failed: {err}", file=sys.stderr)
+        return 1
+    meas_idx = np.searchsorted(t_all, t_meas)
+    y_true = np.array([np.atleast_1d(spec.output(x)) for x in sim.x[meas_idx]]) \
+        .reshape(t_meas.size, spec.p)
+    y = y_true + args.noise * noise_rng.standard_normal(y_true.shape) if args.noise > 0 \
+        else y_true
+    sim_time = time.perf_counter() - started
+
+    sys_name = spec.name
+    topics = {
+        "input": f"/{sys_name}/input",
+        "measured_output": f"/{sys_name}/measured_output",
+        "joint_states": f"/{sys_name}/joint_states",
+        "true_state": f"/{sys_name}/true_state",
+        "clock": "/clock",
+    }
+    if spec.m == 0:
+        del topics["input"]
+    if not spec.joint_names:
+        del topics["joint_states"]
+    settings = {
+        "fto_ros_version": __version__,
+        "model": spec.name,
+        "description": spec.description,
+        "state_names": list(spec.state_names),
+        "input_names": list(spec.input_names),
+        "output_names": list(spec.output_names),
+        "joint_names": list(spec.joint_names),
+        "params": dict(spec.default_params),
+        "x0": [float(v) for v in spec.default_x0],
+        "t0": 0.0,
+        "duration": args.duration,
+        "base_rate": args.rate,
+        "input_profile": spec.input_description,
+        "input_hold": "zero-order hold at the base-rate instants",
+        "measurement_sampling": sampling,
+        "measurement_noise": {"type": "gaussian", "sigma": args.noise,
+                              "applies_to": list(spec.output_names)},
+        "uncertainty": {"enabled": bool(args.uncertainty),
+                        "description": spec.uncertainty_description if args.uncertainty
+                        else "none"},
+        "seed": args.seed,
+        "integrator": {"method": METHOD, "rtol": RTOL, "atol": ATOL,
+                       "scheme": "piecewise between consecutive instants, input held exactly"},
+        "topics": topics,
+        "log_time": "sample time, round(t * 1e9) ns, t = 0 at the start",
+    }
+
+    is_input = np.zeros(t_all.size, dtype=bool)
+    is_input[np.searchsorted(t_all, base)] = True
+    u_at = sim.u
+    is_meas = np.zeros(t_all.size, dtype=bool)
+    is_meas[meas_idx] = True
+    meas_row = np.full(t_all.size, -1)
+    meas_row[meas_idx] = np.arange(t_meas.size)
+    joints = list(spec.joint_names)
+
+    try:
+        with BagWriter(out, overwrite=args.overwrite,
+                       custom_data={METADATA_KEY: json.dumps(settings, sort_keys=True)}) as bag:
+            for i, t in enumerate(t_all):
+                t_ns = to_ns(t)
+                bag.clock(t_ns)
+                if is_input[i] and spec.m:
+                    bag.float_array(topics["input"], t_ns, u_at[i])
+                bag.float_array(topics["true_state"], t_ns, sim.x[i])
+                if is_meas[i]:
+                    yj = y[meas_row[i]]
+                    bag.float_array(topics["measured_output"], t_ns, yj)
+                    if joints:
+                        bag.joint_state(topics["joint_states"], t_ns, t_ns, joints, position=yj)
+            counts = dict(bag.counts)
+    except BagError as err:
+        print(f"{PROG}: error: {err}", file=sys.stderr)
+        return 1
+    total = time.perf_counter() - started
+    size = sum(p.stat().st_size for p in out.iterdir() if p.is_file())
+    listing = ", ".join(f"{name} {count}" for name, count in sorted(counts.items()))
+    print(f"{PROG}: wrote {out} ({size / 1024:.0f} KiB, {sum(counts.values())} messages, "
+          f"{t_all[-1] - t_all[0]:.3f} s, {sampling['mode']} sampling, noise {args.noise:g}, "
+          f"uncertainty {'on' if args.uncertainty else 'off'}, seed {args.seed}) in "
+          f"{total:.2f} s (simulation {sim_time:.2f} s); topics: {listing}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

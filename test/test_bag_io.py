@@ -1,0 +1,367 @@
+"""rosbag2 (MCAP) writer/reader helpers and ``fto-simulate``. No ROS needed."""
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fto_ros.bag import (BagError, BagReader, BagWriter, bag_info, list_topics,
+                         read_messages)
+from fto_ros.cli import simulate as cli
+from fto_ros.models import get_model
+from fto_ros.models.simulate import simulate, uniform_grid
+
+ROOT = Path(__file__).resolve().parents[1]
+F64 = "std_msgs/msg/Float64MultiArray"
+JS = "sensor_msgs/msg/JointState"
+CLOCK = "rosgraph_msgs/msg/Clock"
+DIAG = "diagnostic_msgs/msg/DiagnosticArray"
+VALUES = [0.0, -0.0, 1.5, -2.25, 1e-300, 1.7976931348623157e308, math.pi, -1.0 / 3.0]
+
+
+def stamp_ns(stamp) -> int:
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+def write_sample_bag(path: Path, **kw) -> None:
+    with BagWriter(path, custom_data={"k": "v", "json": '{"a": 1}'}, **kw) as bag:
+        bag.clock(0)
+        bag.float_array("/sys/y", 0, VALUES)
+        bag.joint_state("/sys/joint_states", 0, 0, ["joint1"], position=[0.5])
+        bag.clock(1_000_000)
+        bag.joint_state("/sys/joint_states", 1_000_000, 999_999_999_999, ["a", "b"],
+                        position=[1.0, 2.0], velocity=[], effort=[-3.0, 4.5], frame_id="base")
+        bag.float_array("/sys/empty", 1_000_000, [])
+        bag.diagnostics("/diagnostics", 2_500_000_000, [
+            {"level": "WARN", "name": "obs: status", "message": "converging",
+             "hardware_id": "dc_motor", "values": {"samples": 12, "residual": 1.5e-3}},
+            {"level": 0, "name": "second", "message": "", "values": [("x", "y")]},
+        ], stamp_ns=2_400_000_000)
+        bag.clock(2_500_000_000)
+
+
+def test_round_trip_all_message_types(tmp_path):
+    path = tmp_path / "bag"
+    write_sample_bag(path)
+    assert (path / "metadata.yaml").is_file() and list(path.glob("*.mcap"))
+    msgs = list(read_messages(path))
+    assert [(topic, t) for topic, t, _ in msgs] == [
+        ("/clock", 0), ("/sys/y", 0), ("/sys/joint_states", 0),
+        ("/clock", 1_000_000), ("/sys/joint_states", 1_000_000), ("/sys/empty", 1_000_000),
+        ("/diagnostics", 2_500_000_000), ("/clock", 2_500_000_000)]
+    clk0, y, js0, clk1, js1, empty, diag, clk2 = (m for _, _, m in msgs)
+    assert stamp_ns(clk0.clock) == 0 and stamp_ns(clk1.clock) == 1_000_000
+    assert stamp_ns(clk2.clock) == 2_500_000_000
+    assert clk2.clock.sec == 2 and clk2.clock.nanosec == 500_000_000
+    assert y.__msgtype__ == F64 and y.data.dtype == np.float64
+    assert y.data.tolist() == VALUES  # bit-exact
+    assert math.copysign(1.0, y.data[1]) == -1.0
+    assert list(empty.data) == []
+    assert js0.name == ["joint1"] and js0.position.tolist() == [0.5]
+    assert len(js0.velocity) == 0 and len(js0.effort) == 0
+    assert stamp_ns(js1.header.stamp) == 999_999_999_999 and js1.header.frame_id == "base"
+    assert js1.name == ["a", "b"] and js1.position.tolist() == [1.0, 2.0]
+    assert js1.effort.tolist() == [-3.0, 4.5] and len(js1.velocity) == 0
+    assert stamp_ns(diag.header.stamp) == 2_400_000_000
+    s0, s1 = diag.status
+    assert (s0.level, s0.name, s0.message, s0.hardware_id) == (1, "obs: status", "converging",
+                                                               "dc_motor")
+    assert [(kv.key, kv.value) for kv in s0.values] == [("samples", "12"), ("residual", "0.0015")]
+    assert (s1.level, s1.name, [(kv.key, kv.value) for kv in s1.values]) == (0, "second",
+                                                                             [("x", "y")])
+
+
+def test_topics_info_and_custom_data(tmp_path):
+    path = tmp_path / "bag"
+    write_sample_bag(path)
+    assert list_topics(path) == {
+        "/clock": (CLOCK, 3), "/diagnostics": (DIAG, 1), "/sys/empty": (F64, 1),
+        "/sys/joint_states": (JS, 2), "/sys/y": (F64, 1)}
+    info = bag_info(path)
+    assert info.message_count == 8 and info.storage == "mcap"
+    assert (info.start_ns, info.end_ns, info.duration_ns) == (0, 2_500_000_000, 2_500_000_000)
+    assert info.custom_data == {"k": "v", "json": '{"a": 1}'}
+
+
+def test_uncompressed_bag_and_filters(tmp_path):
+    path = tmp_path / "bag"
+    write_sample_bag(path, compress=False)
+    with BagReader(path) as bag:
+        got = [(topic, t) for topic, t, _ in bag.messages(["/clock"], start_ns=1,
+                                                          stop_ns=2_500_000_000)]
+        assert got == [("/clock", 1_000_000)]
+        with pytest.raises(BagError, match="no topic"):
+            bag.messages(["/nope"])
+
+
+def test_equal_log_times_keep_write_order_across_chunks(tmp_path):
+    path = tmp_path / "bag"
+    n = 20000  # several MCAP chunks
+    with BagWriter(path) as bag:
+        for k in range(n):
+            bag.float_array("/a", k * 1000, [k])
+            bag.float_array("/b", k * 1000, [-k])
+    prev = None
+    count = 0
+    for topic, t, msg in read_messages(path):
+        k = t // 1000
+        expected = ("/a", k) if count % 2 == 0 else ("/b", -k)
+        assert (topic, msg.data[0]) == expected
+        assert prev is None or t >= prev
+        prev = t
+        count += 1
+    assert count == 2 * n
+
+
+def test_decodes_with_rclpy_when_available(tmp_path):
+    """The CDR written here is what a ROS 2 Jazzy node deserializes."""
+    pytest.importorskip("rclpy")
+    try:
+        from rclpy.serialization import deserialize_message
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rosgraph_msgs.msg import Clock
+        from sensor_msgs.msg import JointState
+        from std_msgs.msg import Float64MultiArray
+    except ImportError as err:  # ROS libraries not loadable here
+        pytest.skip(f"rclpy messages unavailable: {err}")
+    from rosbags.rosbag2 import Reader
+    types = {F64: Float64MultiArray, JS: JointState, CLOCK: Clock, DIAG: DiagnosticArray}
+    path = tmp_path / "bag"
+    write_sample_bag(path)
+    with Reader(path) as reader:
+        decoded = [(c.topic, deserialize_message(bytes(raw), types[c.msgtype]))
+                   for c, _, raw in reader.messages()]
+    assert list(decoded[1][1].data) == VALUES
+    assert list(decoded[4][1].effort) == [-3.0, 4.5]
+    assert decoded[6][1].status[0].values[1].value == "0.0015"
+
+
+# ------------------------------------------------------------------- errors
+def test_missing_path(tmp_path):
+    with pytest.raises(BagError, match="does not exist") as exc:
+        read_messages(tmp_path / "nope")
+    assert str(tmp_path / "nope") in str(exc.value)
+    with pytest.raises(BagError):
+        bag_info(tmp_path / "nope")
+
+
+def test_directory_that_is_not_a_bag(tmp_path):
+    (tmp_path / "notes.txt").write_text("hello")
+    with pytest.raises(BagError, match="not a rosbag2 bag") as exc:
+        BagReader(tmp_path)
+    assert str(tmp_path) in str(exc.value)
+    other = tmp_path / "notes.txt"
+    with pytest.raises(BagError, match="not a rosbag2 bag"):
+        list_topics(other)
+
+
+@pytest.mark.parametrize("keep", [0.0, 0.3, 0.9, 0.999])
+def test_truncated_mcap(tmp_path, keep):
+    path = tmp_path / "bag"
+    write_sample_bag(path)
+    mcap = next(path.glob("*.mcap"))
+    data = mcap.read_bytes()
+    mcap.write_bytes(data[:int(len(data) * keep)])
+    with pytest.raises(BagError) as exc:
+        list(read_messages(path))
+    assert str(path) in str(exc.value) and "Traceback" not in str(exc.value)
+
+
+def test_corrupt_chunk_and_metadata(tmp_path):
+    path = tmp_path / "bag"
+    with BagWriter(path) as bag:
+        for k in range(5000):
+            bag.float_array("/a", k, np.sin(np.arange(8) * k))
+    mcap = next(path.glob("*.mcap"))
+    data = bytearray(mcap.read_bytes())
+    mid = len(data) // 3
+    data[mid:mid + 64] = b"\xa5" * 64
+    mcap.write_bytes(bytes(data))
+    with pytest.raises(BagError, match="corrupt") as exc:
+        list(read_messages(path))
+    assert str(path) in str(exc.value)
+    (path / "metadata.yaml").write_text("rosbag2_bagfile_information: [")
+    with pytest.raises(BagError, match="cannot open bag"):
+        bag_info(path)
+
+
+def test_existing_output_and_overwrite(tmp_path):
+    path = tmp_path / "bag"
+    write_sample_bag(path)
+    with pytest.raises(BagError, match="exists already") as exc:
+        BagWriter(path).open()
+    assert str(path) in str(exc.value)
+    with BagWriter(path, overwrite=True) as bag:
+        bag.clock(5)
+    assert list_topics(path) == {"/clock": (CLOCK, 1)}
+    # a directory that is not a bag is never deleted
+    src = tmp_path / "src"
+    (src / "pkg").mkdir(parents=True)
+    (src / "setup.py").write_text("")
+    with pytest.raises(BagError, match="refusing to overwrite"):
+        BagWriter(src, overwrite=True).open()
+    assert (src / "setup.py").exists()
+    # an empty directory is fine
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with BagWriter(empty, overwrite=True) as bag:
+        bag.clock(1)
+
+
+def test_writer_validation(tmp_path):
+    with BagWriter(tmp_path / "bag") as bag:
+        with pytest.raises(BagError, match=">= 0"):
+            bag.clock(-1)
+        with pytest.raises(BagError, match="integer number of nanoseconds"):
+            bag.float_array("/a", 0.5, [1.0])
+        bag.float_array("/a", 1, [1.0])
+        with pytest.raises(BagError, match="already has type"):
+            bag.clock(2, topic="/a")
+        with pytest.raises(BagError, match="2 values for 1 joint"):
+            bag.joint_state("/j", 1, 1, ["j"], position=[1.0, 2.0])
+        with pytest.raises(BagError, match="unknown level"):
+            bag.diagnostics("/diagnostics", 1, [{"level": "FINE"}])
+        with pytest.raises(BagError, match="absolute"):
+            bag.float_array("relative", 1, [1.0])
+    with pytest.raises(BagError, match="not open"):
+        BagWriter(tmp_path / "other").float_array("/a", 0, [1.0])
+
+
+def test_failed_write_removes_half_written_bag(tmp_path):
+    path = tmp_path / "bag"
+    with pytest.raises(RuntimeError):
+        with BagWriter(path) as bag:
+            bag.clock(1)
+            raise RuntimeError("boom")
+    assert not path.exists()
+
+
+# ------------------------------------------------------------------- fto-simulate
+def run_cli(*argv) -> int:
+    return cli.main([str(a) for a in argv])
+
+
+def test_simulate_cli_records_the_documented_topics(tmp_path, capsys):
+    out = tmp_path / "dcm"
+    assert run_cli("dc_motor", "--out", out, "--duration", 0.2) == 0
+    assert "wrote" in capsys.readouterr().out
+    assert list_topics(out) == {
+        "/clock": (CLOCK, 201), "/dc_motor/input": (F64, 201),
+        "/dc_motor/joint_states": (JS, 201), "/dc_motor/measured_output": (F64, 201),
+        "/dc_motor/true_state": (F64, 201)}
+    spec = get_model("dc_motor")
+    t = uniform_grid(0.2, 1000.0)
+    ref = simulate(spec.make_rhs(dict(spec.default_params)), spec.default_x0, t,
+                   spec.default_input)
+    rows: dict[str, list] = {}
+    for topic, t_ns, msg in read_messages(out):
+        rows.setdefault(topic, []).append((t_ns, msg))
+    assert [t_ns for t_ns, _ in rows["/clock"]] == [k * 1_000_000 for k in range(201)]
+    truth = np.array([m.data for _, m in rows["/dc_motor/true_state"]])
+    np.testing.assert_array_equal(truth, ref.x)
+    np.testing.assert_array_equal([m.data[0] for _, m in rows["/dc_motor/input"]], ref.u[:, 0])
+    np.testing.assert_array_equal([m.data[0] for _, m in rows["/dc_motor/measured_output"]],
+                                  ref.x[:, 0])  # no noise by default
+    for t_ns, js in rows["/dc_motor/joint_states"]:
+        assert stamp_ns(js.header.stamp) == t_ns and js.name == ["joint1"]
+        assert len(js.velocity) == 0 and len(js.effort) == 0
+    settings = json.loads(bag_info(out).custom_data[cli.METADATA_KEY])
+    assert settings["model"] == "dc_motor" and settings["x0"] == [0.5, -1.0, 0.2]
+    assert settings["params"]["a4"] == 200.0 and settings["seed"] == 0
+
+
+def test_simulate_cli_sparse_noisy(tmp_path):
+    out = tmp_path / "sparse"
+    assert run_cli("dc_motor", "--out", out, "--duration", 1.0, "--noise", 1e-3,
+                   "--uncertainty", "--seed", 5, "--sparse-min", 0.02, "--sparse-max", 0.05) == 0
+    rows: dict[str, list] = {}
+    for topic, t_ns, msg in read_messages(out):
+        rows.setdefault(topic, []).append((t_ns, msg))
+    t_meas = np.array([t for t, _ in rows["/dc_motor/measured_output"]])
+    gaps = np.diff(t_meas)
+    assert t_meas[0] == 0 and gaps.min() >= 20_000_000 and gaps.max() <= 50_000_000
+    assert len(rows["/dc_motor/input"]) == 1001
+    truth = {t: m.data for t, m in rows["/dc_motor/true_state"]}
+    clock = {t for t, _ in rows["/clock"]}
+    assert set(t_meas) <= set(truth) and set(t_meas) <= clock  # truth wherever y exists
+    err = np.array([m.data[0] - truth[t][0] for t, m in rows["/dc_motor/measured_output"]])
+    assert 0 < np.abs(err).max() < 6e-3
+    settings = json.loads(bag_info(out).custom_data[cli.METADATA_KEY])
+    assert settings["measurement_sampling"]["mode"] == "sparse"
+    assert settings["uncertainty"]["enabled"] is True
+    assert settings["measurement_noise"]["sigma"] == 1e-3
+    # same seed, same bag contents
+    out2 = tmp_path / "sparse2"
+    assert run_cli("dc_motor", "--out", out2, "--duration", 1.0, "--noise", 1e-3,
+                   "--uncertainty", "--seed", 5, "--sparse-min", 0.02, "--sparse-max", 0.05) == 0
+    a = [(tp, t, list(m.data)) for tp, t, m in read_messages(out, ["/dc_motor/measured_output"])]
+    b = [(tp, t, list(m.data)) for tp, t, m in read_messages(out2, ["/dc_motor/measured_output"])]
+    assert a == b
+
+
+def test_simulate_cli_sample_times_file(tmp_path):
+    times = tmp_path / "times.txt"
+    times.write_text("# instants\n0.0, 0.0105\n0.05 0.1234\n")
+    out = tmp_path / "file"
+    assert run_cli("dc_motor", "--out", out, "--duration", 0.2, "--sample-times", times) == 0
+    got = [t for _, t, _ in read_messages(out, ["/dc_motor/joint_states"])]
+    assert got == [0, 10_500_000, 50_000_000, 123_400_000]
+
+
+@pytest.mark.parametrize("argv,message", [
+    (["nope", "--out", "X"], "known models: dc_motor"),
+    (["dc_motor"], "--out"),
+    (["dc_motor", "--out", "X", "--duration", "-1"], "--duration"),
+    (["dc_motor", "--out", "X", "--rate", "abc"], "--rate"),
+    (["dc_motor", "--out", "X", "--noise", "-0.1"], "--noise"),
+    (["dc_motor", "--out", "X", "--sparse-min", "0.1"], "together"),
+    (["dc_motor", "--out", "X", "--sparse-min", "0.2", "--sparse-max", "0.1"], "<="),
+    (["dc_motor", "--out", "X", "--sparse-min", "0.1", "--sparse-max", "0.2",
+      "--sample-times", "f"], "mutually exclusive"),
+])
+def test_simulate_cli_bad_arguments_exit_2(tmp_path, capsys, argv, message):
+    argv = [str(tmp_path / a) if a == "X" else a for a in argv]
+    with pytest.raises(SystemExit) as exc:
+        cli.main(argv)
+    assert exc.value.code == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "X").exists()
+
+
+def test_simulate_cli_existing_output(tmp_path, capsys):
+    out = tmp_path / "dcm"
+    out.mkdir()
+    (out / "keep.txt").write_text("x")
+    assert run_cli("dc_motor", "--out", out, "--duration", 0.01) == 1
+    assert "exists already" in capsys.readouterr().err
+    assert run_cli("dc_motor", "--out", out, "--duration", 0.01, "--overwrite") == 1
+    assert "refusing to overwrite" in capsys.readouterr().err
+    assert (out / "keep.txt").exists()
+    shutil.rmtree(out)
+    assert run_cli("dc_motor", "--out", out, "--duration", 0.01) == 0
+    assert run_cli("dc_motor", "--out", out, "--duration", 0.02, "--overwrite") == 0
+    assert list_topics(out)["/clock"].count == 21
+
+
+def test_simulate_runs_as_module(tmp_path):
+    out = tmp_path / "m"
+    proc = subprocess.run([sys.executable, "-m", "fto_ros.cli.simulate", "dc_motor", "--out",
+                           str(out), "--duration", "0.05"], cwd=ROOT, capture_output=True,
+                          text=True)
+    assert proc.returncode == 0, proc.stderr
+    assert "/dc_motor/true_state 51" in proc.stdout
+    proc = subprocess.run([sys.executable, "-m", "fto_ros.cli.simulate", "nope", "--out",
+                           str(out)], cwd=ROOT, capture_output=True, text=True)
+    assert proc.returncode == 2 and "known models: dc_motor" in proc.stderr
+
+
+def test_bag_layer_imports_no_rclpy():
+    code = ("import sys, fto_ros.bag, fto_ros.cli.simulate; "
+            "sys.exit(1 if 'rclpy' in sys.modules else 0)")
+    assert subprocess.run([sys.executable, "-c", code], cwd=ROOT).returncode == 0
