@@ -98,6 +98,15 @@ class Runner:
             return reason
         self._u = np.array(u, dtype=float)
         self._t_input = t
+        # observers that predict between sparse measurements (single_delay, sampled form)
+        # integrate up to each input change, so a fast input is applied when it changes
+        advance = getattr(self.observer, "advance", None)
+        if advance is not None and self._t0 is not None and self._t_last is not None and t >= self._t_last:
+            try:
+                advance(t, self._u)
+            except SampleRejected as exc:
+                self._reject(exc.reason)
+                return exc.reason
         return None
 
     def process(self, t: float, y) -> Output | str:
