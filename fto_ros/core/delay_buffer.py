@@ -21,8 +21,7 @@ class DelayBuffer:
         self.dim = dim
         self._cap = max(4, capacity)
         self._t = np.empty(self._cap)
-        self._v = np.empty((self._cap, dim))
-        self._d = np.empty((self._cap, dim))
+        self._vd = np.empty((self._cap, 2 * dim))   # row = [value, derivative]
         self.clear()
 
     def clear(self) -> None:
@@ -43,8 +42,8 @@ class DelayBuffer:
             self._grow()
         i = self._end % self._cap
         self._t[i] = t
-        self._v[i] = value
-        self._d[i] = derivative
+        self._vd[i, :self.dim] = value
+        self._vd[i, self.dim:] = derivative
         self._end += 1
 
     def at(self, t: float) -> np.ndarray:
@@ -53,7 +52,7 @@ class DelayBuffer:
         The next read must not be earlier than this one.
         """
         cap = self._cap
-        if not len(self) or t < self._t[self._start % cap] or t > self._t[(self._end - 1) % cap]:
+        if not len(self) or not self._t[self._start % cap] <= t <= self._t[(self._end - 1) % cap]:
             raise ValueError(f"time {t} outside the buffer [{self.first_time}, newest]")
         a = self._cursor
         if t < self._t[a % cap]:
@@ -62,16 +61,17 @@ class DelayBuffer:
             a += 1
         self._cursor = a
         ia = a % cap
-        ta = self._t[ia]
+        ta = float(self._t[ia])
         if a + 1 == self._end or t == ta:
-            return self._v[ia].copy()
+            return self._vd[ia, :self.dim].copy()
         ib = (a + 1) % cap
-        h = self._t[ib] - ta
+        h = float(self._t[ib]) - ta
         s = (t - ta) / h
         s2 = s * s
         s3 = s2 * s
-        return ((2 * s3 - 3 * s2 + 1) * self._v[ia] + (s3 - 2 * s2 + s) * h * self._d[ia]
-                + (-2 * s3 + 3 * s2) * self._v[ib] + (s3 - s2) * h * self._d[ib])
+        # Hermite basis on rows [v_a, d_a, v_b, d_b]: one small product
+        coef = np.array((2 * s3 - 3 * s2 + 1, (s3 - 2 * s2 + s) * h, -2 * s3 + 3 * s2, (s3 - s2) * h))
+        return coef @ self._vd[[ia, ib]].reshape(4, self.dim)
 
     def trim(self) -> None:
         """Drop the entries before the last read."""
@@ -89,7 +89,6 @@ class DelayBuffer:
         # keep absolute indices valid (marks survive growth): entry i goes to i % cap
         cap = 2 * self._cap
         old = np.arange(self._start, self._end)
-        t, v, d = np.empty(cap), np.empty((cap, self.dim)), np.empty((cap, self.dim))
-        t[old % cap], v[old % cap], d[old % cap] = self._t[old % self._cap], self._v[old % self._cap], \
-            self._d[old % self._cap]
-        self._t, self._v, self._d, self._cap = t, v, d, cap
+        t, vd = np.empty(cap), np.empty((cap, 2 * self.dim))
+        t[old % cap], vd[old % cap] = self._t[old % self._cap], self._vd[old % self._cap]
+        self._t, self._vd, self._cap = t, vd, cap

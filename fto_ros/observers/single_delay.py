@@ -133,27 +133,27 @@ class SingleDelayObserver(Observer):
         Param("n_unmeasured", "int", None, "n1 = n - q, size of the unmeasured part xi1", min=1, max=32),
         Param("n_outputs", "int", 1, "q, number of measured outputs (= size of xi2)", min=1, max=32),
         Param("n_inputs", "int", 0, "m, number of known inputs", min=0, max=32),
-        Param("A1", "double_array", None, "n1 x n1 matrix of eq. (2), row-major"),
-        Param("A2", "double_array", None, "q x n1 matrix of eq. (2), row-major; (A1, A2) observable"),
-        Param("k", "double", None, "k > 0 of eq. (2); A1 + k I must be invertible", min=0.0),
-        Param("tau", "double", None, "the delay = the guaranteed convergence time (s), > 0", min=0.0),
-        Param("F1", "string_array", [], "n1 known terms in y0.. and u0.. (eq. 2; empty: zeros)"),
-        Param("F2", "string_array", [], "q known terms in y0.. and u0.. (eq. 2; empty: zeros)"),
-        Param("lipschitz_K1", "double", 0.0, "Lipschitz constant of F1 in y (eq. 3), for the bounds", min=0.0),
-        Param("lipschitz_K2", "double", 0.0, "Lipschitz constant of F2 in y (eq. 3), for the bounds", min=0.0),
+        Param("A1", "double_array", None, "n1 x n1 matrix of eq. (2), row-major", read_only=False),
+        Param("A2", "double_array", None, "q x n1 matrix of eq. (2), row-major; (A1, A2) observable", read_only=False),
+        Param("k", "double", None, "k > 0 of eq. (2); A1 + k I must be invertible", min=0.0, read_only=False),
+        Param("tau", "double", None, "the delay = the guaranteed convergence time (s), > 0", min=0.0, read_only=False),
+        Param("F1", "string_array", [], "n1 known terms in y0.. and u0.. (eq. 2; empty: zeros)", read_only=False),
+        Param("F2", "string_array", [], "q known terms in y0.. and u0.. (eq. 2; empty: zeros)", read_only=False),
+        Param("lipschitz_K1", "double", 0.0, "Lipschitz constant of F1 in y (eq. 3), for the bounds", min=0.0, read_only=False),
+        Param("lipschitz_K2", "double", 0.0, "Lipschitz constant of F2 in y (eq. 3), for the bounds", min=0.0, read_only=False),
         Param("measurement", "string", "continuous", "'continuous' (Theorem 1) or 'sampled' (Theorem 2: "
-              "y at sparse instants, predictor between them)", choices=("continuous", "sampled")),
+              "y at sparse instants, predictor between them)", choices=("continuous", "sampled"), read_only=False),
         Param("substep", "double", 1e-3, "sampled form: longest integration sub-step (s)", min=1e-7,
-              max=1.0),
+              max=1.0, read_only=False),
         Param("max_sample_interval", "double", 0.0, "sampled form: the T_bar of (36) you expect, to "
-              "check Theorem 2's condition T_bar mu < 1 (0: not checked)", min=0.0),
+              "check Theorem 2's condition T_bar mu < 1 (0: not checked)", min=0.0, read_only=False),
         Param("input_hold", "string", "zoh", "u between samples: held (zoh, like a DAC) or linear (foh)",
-              choices=("zoh", "foh")),
+              choices=("zoh", "foh"), read_only=False),
         Param("state_map", "double_array", [], "n x n matrix P with x_plant = P [xi1; xi2] "
-              "(empty: identity, x = [xi1; xi2])"),
+              "(empty: identity, x = [xi1; xi2])", read_only=False),
         Param("state_names", "string_array", [], "names of the plant states (empty: x0, x1, ...)"),
         Param("allow_unstable_internal", "bool", False, "accept A1 or -(A1^T + 2kI) with unstable "
-              "modes: the internal states then grow exponentially (short runs only)"),
+              "modes: the internal states then grow exponentially (short runs only)", read_only=False),
     )
 
     def __init__(self, cfg: dict):
@@ -254,10 +254,19 @@ class SingleDelayObserver(Observer):
         Me[:, sl["p1"]] = -Sinv
         Me[:, sl["p2"]] = Sinv
         self.Me = Me
-        self.Mz = np.vstack([Md, Md @ Az, Me])
         self.R = d["R"]
         if not self.sampled:
             self.stepper = ExactStepper(Az, Bz)
+            # everything an update needs from [z, w0, w1] in one product (see _fused)
+            W = n1 + 2 * q
+            Mo = np.zeros((3 * n1, N + W))
+            Mo[:n1, :N] = Md
+            Mo[n1:2 * n1, :N] = Md @ Az
+            Mo[n1:2 * n1, N:] = Md @ Bz
+            Mo[2 * n1:, :N] = Me
+            Mo[2 * n1:, N + n1 + q:] = d["R"]
+            self._Mo = Mo
+            self._fused_cache: dict[int, np.ndarray] = {}
             return
         # sampled form: Z = [z, omega]; v = [F1(omega,u), F2(omega,u), dl(t - tau)]
         # omega' = A2 xi_e - k omega + F2, xi_e = Me z + R omega + dl  (after t0 + tau)
@@ -328,25 +337,45 @@ class SingleDelayObserver(Observer):
         self._xi_e = z[self.sl["x1"]].copy()
         self._publish(y)
 
+    def _fused(self, h: float) -> np.ndarray:
+        """K(h) with K(h) [z; w0; w1] = [z(t+h); dl; d(dl)/dt; Me z + R Y] at t + h.
+
+        The exact step and every linear read-out of the update in one
+        matrix-vector product (cached per step size, like the step itself).
+        """
+        key = round(h * 1e9)
+        K = self._fused_cache.get(key)
+        if K is None:
+            S_h = self.stepper.stacked(key * 1e-9)
+            N, W = S_h.shape[0], self.n1 + 2 * self.q
+            z_w1 = np.zeros((N + W, N + 2 * W))
+            z_w1[:N] = S_h
+            z_w1[N:, N + W:] = np.eye(W)
+            K = np.vstack([S_h, self._Mo @ z_w1])
+            if len(self._fused_cache) >= 256:
+                self._fused_cache.pop(next(iter(self._fused_cache)))
+            self._fused_cache[key] = K
+        return K
+
     def _update_continuous(self, t, y, u):
-        n1 = self.n1
+        n1, N = self.n1, self._z.shape[0]
         h = t - self._t
         u_end = u if self.foh_input else self._u
         w1 = self._w(y, u_end)
         w0 = self._w_prev
-        z = self.stepper.step(self._z, w0, w1, h)
-        zz = self.Mz @ z                                   # [dl; d(dl)/dt from z; Me z]
-        dl_now = zz[:n1]
-        ddl_now = zz[n1:2 * n1] + self.MdB @ w1            # only the Y part of w enters psi'
+        out = self._fused(h) @ np.concatenate((self._z, w0, w1))
+        z = out[:N]
+        dl_now = out[N:N + n1]
+        ddl_now = out[N + n1:N + 2 * n1]
         if self._converged_at(t):
             mark = self.buffer.mark()
             dl_del = self.buffer.at(max(t - self.tau, self.buffer.first_time))
-            xi_e = zz[2 * n1:] + self.R @ y + dl_del
+            xi_e = out[N + 2 * n1:] + dl_del
         else:
             mark, dl_del = None, None
             xi_e = z[:n1]
-        # a NaN or Inf anywhere in z reaches zz (0 * nan is nan), so one check covers all
-        if not math.isfinite(zz.sum()):
+        # a NaN or Inf anywhere in z or w reaches out (0 * nan is nan): one check covers all
+        if not math.isfinite(out.sum()):
             if mark is not None:
                 self.buffer.rewind(mark)
             raise SampleRejected("non_finite_estimate")

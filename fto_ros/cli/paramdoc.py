@@ -1,0 +1,51 @@
+"""Print the parameter reference (markdown) from the schemas the code validates against.
+
+``python -m fto_ros.cli.paramdoc`` regenerates the README's parameter tables, so
+the docs cannot drift from what the node declares (a test checks the README).
+"""
+from __future__ import annotations
+
+from ..observers import REGISTRY
+from ..observers.base import Param
+from ..runner.settings import SETTINGS
+
+
+def _default(p: Param) -> str:
+    if p.default is None:
+        return "**required**"
+    if p.default == [] or p.default == "":
+        return "(empty)"
+    return f"`{p.default}`"
+
+
+def _range(p: Param) -> str:
+    parts = []
+    if p.choices:
+        parts.append(" / ".join(p.choices))
+    if p.min is not None:
+        parts.append(f">= {p.min:g}")
+    if p.max is not None:
+        parts.append(f"<= {p.max:g}")
+    return ", ".join(parts)
+
+
+def table(params, prefix: str = "") -> str:
+    rows = ["| parameter | type | default | range | runtime change | description |",
+            "|---|---|---|---|---|---|"]
+    for p in params:
+        rows.append(f"| `{prefix}{p.name}` | {p.kind} | {_default(p)} | {_range(p)} | "
+                    f"{'no' if p.read_only else 'yes'} | {p.description.replace('|', '/')} |")
+    return "\n".join(rows)
+
+
+def main() -> int:
+    print("#### Node, runner and I/O parameters\n")
+    print(table(SETTINGS))
+    for name, cls in sorted(REGISTRY.items()):
+        print(f"\n#### `{name}` — {cls.DESCRIPTION}\n")
+        print(table(cls.PARAMS, prefix=name + "."))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,124 @@
+"""``fto-replay BAG --params FILE --out OUT``: replay a bag offline, write outputs and metrics.
+
+Exit codes: 0 success, 1 the replay could not run (missing or malformed bag or
+params file, existing output, ...; one ``fto-replay: error: ...`` line on
+stderr, no traceback), 2 usage error, 130 interrupted.  Set ``FTO_DEBUG=1``
+to get the traceback of an unexpected error.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+
+PROG = "fto-replay"
+
+
+def _positive(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
+    return v
+
+
+def _non_negative(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (math.isfinite(v) and v >= 0):
+        raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text}")
+    return v
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from .replay import DEFAULT_NODE_NAME, DEFAULT_TOLERANCE
+    p = argparse.ArgumentParser(
+        prog=PROG,
+        description="Replay a rosbag2 bag through an fto_ros observer offline (no DDS), exactly "
+                    "as the live node would run it. Writes OUT as a rosbag2 MCAP bag (estimates, "
+                    "convergence, diagnostics, the bag's ground truth) plus OUT/metrics.json and "
+                    "OUT/replay.png.")
+    p.add_argument("bag", metavar="BAG", help="input bag (rosbag2 directory or .mcap file)")
+    p.add_argument("--params", required=True, metavar="FILE",
+                   help="ROS 2 params file of the observer node (e.g. config/dc_motor_luenberger.yaml)")
+    p.add_argument("--out", required=True, metavar="OUT", help="output bag directory")
+    p.add_argument("--node-name", default=None, metavar="N",
+                   help=f"node name: selects the params block and the output namespace "
+                        f"(default {DEFAULT_NODE_NAME})")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing OUT")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--after", type=_non_negative, default=None, metavar="T",
+                   help="settle time (s after the observer starts) for the 'after settling' "
+                        "errors (default: the guaranteed time + 0.01 s, or 0.11 s without one)")
+    p.add_argument("--tolerance", type=_positive, default=DEFAULT_TOLERANCE, metavar="TOL",
+                   help=f"error bound (state units) defining the measured convergence time "
+                        f"(default {DEFAULT_TOLERANCE:g})")
+    return p
+
+
+def _fmt(v, spec=".3g") -> str:
+    return "n/a" if v is None else format(v, spec)
+
+
+def summary(m: dict) -> str:
+    """A few human-readable lines about a replay's metrics."""
+    lines = [f"{m['observer_type']} on {m['bag']}: {m['samples_accepted']} samples accepted, "
+             f"{m['samples_rejected']} rejected"
+             + (f" ({', '.join(f'{k}: {v}' for k, v in m['rejected_by_reason'].items())})"
+                if m["rejected_by_reason"] else "")
+             + (f", {m['restarts']} restart(s)" if m["restarts"] else "")]
+    gt = m["guaranteed_time_s"]
+    lines.append(f"  guaranteed time: {'none' if gt is None else f'{gt:g} s'}; measured "
+                 f"convergence time (tol {m['tolerance']:g}): "
+                 f"{_fmt(m['convergence_time_s'], '.4g')}"
+                 + ("" if m["convergence_time_s"] is None else " s"))
+    if m["errors"]:
+        per = m["errors"]["per_state"]
+        lines.append(f"  after {m['settle_time_s']:g} s: max |error| "
+                     + ", ".join(f"{k} {_fmt(v['max_abs_after_settle'])}" for k, v in per.items())
+                     + "; RMS " + ", ".join(f"{k} {_fmt(v['rms_after_settle'])}"
+                                            for k, v in per.items()))
+    else:
+        lines.append(f"  {m['errors_note']}")
+    u = m["update_time_us"]
+    lines.append(f"  update p50/p99: {_fmt(u['p50'], '.1f')} / {_fmt(u['p99'], '.1f')} us; "
+                 f"replay {_fmt(m['replay_speed_x_realtime'], '.1f')}x real time "
+                 f"({m['bag_duration_s']:.3g} s of bag in {m['timing_s']['replay_total']:.3g} s)")
+    lines.append(f"  wrote {m['output_bag']} (+ metrics.json"
+                 + (", replay.png)" if m.get("plot") else ")"))
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)  # usage errors: exit 2 with argparse's message
+    try:
+        from ..bag import BagError
+        from ..core.errors import ConfigError
+        from .replay import ReplayError, replay
+        metrics = replay(args.bag, args.params, args.out, node_name=args.node_name,
+                         overwrite=args.overwrite, progress=not args.no_progress,
+                         after=args.after, tolerance=args.tolerance)
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return 130
+    except (ConfigError, BagError, ReplayError, OSError) as err:
+        print(f"{PROG}: error: {err}", file=sys.stderr)
+        return 1
+    except Exception as err:  # never a traceback for the user; FTO_DEBUG=1 shows it
+        if os.environ.get("FTO_DEBUG"):
+            raise
+        print(f"{PROG}: error: unexpected {type(err).__name__}: {err} "
+              f"(FTO_DEBUG=1 shows the traceback)", file=sys.stderr)
+        return 1
+    print(summary(metrics))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

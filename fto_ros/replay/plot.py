@@ -1,0 +1,103 @@
+"""The replay plot: estimate vs truth per state and the error norm (one PNG).
+
+Uses matplotlib's Agg canvas directly (no pyplot, no global backend change,
+no display needed).
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+#: at most this many points per line (evenly decimated; the plot is for reading, not data)
+MAX_POINTS = 20000
+
+
+def _decimate(*arrays: np.ndarray) -> tuple[np.ndarray, ...]:
+    n = len(arrays[0])
+    if n <= MAX_POINTS:
+        return arrays
+    step = int(math.ceil(n / MAX_POINTS))
+    return tuple(a[::step] for a in arrays)
+
+
+def plot_replay(path: str | Path, *, t: np.ndarray, estimate: np.ndarray,
+                state_names: Sequence[str], truth_t: np.ndarray | None = None,
+                truth: np.ndarray | None = None, err_t: np.ndarray | None = None,
+                err_norm: np.ndarray | None = None, guaranteed_time: float = math.inf,
+                settle_time: float | None = None, tolerance: float | None = None,
+                t_start: float = 0.0, title: str = "") -> Path:
+    """Write the replay figure to ``path`` (PNG) and return the path.
+
+    Times are seconds since the start of the bag.  ``t``/``estimate``: the
+    accepted samples (N,), (N, n); ``truth_t``/``truth``: ground truth (may be
+    None); ``err_t``/``err_norm``: the error norm at the matched samples.
+    ``guaranteed_time`` (seconds after ``t_start``, the observer's first
+    sample) is marked by a labelled vertical line; inf means no guarantee.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    t = np.asarray(t, dtype=float)
+    estimate = np.asarray(estimate, dtype=float).reshape(len(t), -1)
+    n = estimate.shape[1]
+    has_truth = truth is not None and truth_t is not None and len(truth_t) > 0
+    has_err = err_norm is not None and err_t is not None and len(err_t) > 0
+    rows = n + (1 if has_err else 0)
+    fig = Figure(figsize=(9.0, 1.9 * rows + 0.8), dpi=110)
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(rows, 1, sharex=True, squeeze=False)[:, 0]
+    if title:
+        fig.suptitle(title, fontsize=10)
+
+    guaranteed = math.isfinite(guaranteed_time)
+    t_mark = t_start + guaranteed_time if guaranteed else None
+
+    def mark(ax, label: bool) -> None:
+        if t_mark is not None:
+            ax.axvline(t_mark, color="tab:red", linestyle="--", linewidth=1.0,
+                       label=f"guaranteed time {guaranteed_time:g} s" if label else None)
+
+    te, xe = _decimate(t, estimate)
+    if has_truth:
+        tt = np.asarray(truth_t, dtype=float)
+        xt = np.asarray(truth, dtype=float).reshape(len(tt), -1)
+        tt, xt = _decimate(tt, xt)
+    for i in range(n):
+        ax = axes[i]
+        name = state_names[i] if i < len(state_names) else f"x{i}"
+        if has_truth and i < xt.shape[1]:
+            ax.plot(tt, xt[:, i], color="black", linewidth=1.0, label="truth")
+        ax.plot(te, xe[:, i], color="tab:blue", linewidth=0.9,
+                linestyle="--" if has_truth else "-", label="estimate")
+        mark(ax, label=(i == 0))
+        ax.set_ylabel(name)
+        ax.grid(True, alpha=0.3)
+        if i == 0:
+            ax.legend(loc="upper right", fontsize=8)
+    if has_err:
+        ax = axes[-1]
+        et, en = _decimate(np.asarray(err_t, float), np.asarray(err_norm, float))
+        floor = np.finfo(float).tiny
+        ax.semilogy(et, np.maximum(en, floor), color="tab:purple", linewidth=0.9,
+                    label="|x - x_hat| (2-norm)")
+        if tolerance is not None and tolerance > 0:
+            ax.axhline(tolerance, color="gray", linestyle=":", linewidth=1.0,
+                       label=f"tolerance {tolerance:g}")
+        if settle_time is not None:
+            ax.axvline(t_start + settle_time, color="tab:green", linestyle=":", linewidth=1.0,
+                       label=f"settle time {settle_time:g} s")
+        mark(ax, label=True)
+        ax.set_ylabel("error norm")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(loc="upper right", fontsize=8)
+    if not guaranteed:
+        axes[0].text(0.01, 0.95, "no guaranteed convergence time (asymptotic observer)",
+                     transform=axes[0].transAxes, fontsize=8, va="top", color="tab:red")
+    axes[-1].set_xlabel("bag time (s)")
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, format="png")
+    return path
