@@ -81,6 +81,7 @@ class BagReader:
             raise BagError(f"{self.path}: not a rosbag2 bag (expected a bag directory "
                            f"or a .mcap/.db3 file)")
         self._typestore = jazzy_typestore()
+        self.typestore = self._typestore   # public: the types of this bag (Jazzy + its own)
         try:
             self._reader = Reader(self.path)
             self._reader.open()

@@ -16,7 +16,7 @@ import math
 import os
 import shutil
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
@@ -198,6 +198,21 @@ class BagWriter:
         self._conn_types[topic] = msgtype
         self.counts[topic] = 0
         return conn
+
+    def raw_writer(self, topic: str, msgtype: str) -> Callable[[int, bytes], None]:
+        """A fast ``write(t_ns, cdr_bytes)`` for ``topic``: the caller serialises.
+
+        For tight loops (the replay harness writes one message per sample); the
+        topic's connection is created and checked once, here.
+        """
+        conn = self._connection(topic, msgtype)
+        write = self._writer.write
+        counts = self.counts
+
+        def write_raw(t_ns: int, data: bytes) -> None:
+            write(conn, t_ns, data)
+            counts[topic] += 1
+        return write_raw
 
     def write_message(self, topic: str, t_ns: int, msg: Any) -> None:
         """Write any rosbags Jazzy message object ``msg`` on ``topic`` at log time ``t_ns``."""

@@ -61,6 +61,11 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def one_line(err: BaseException | str) -> str:
+    """An error message on one line (YAML and other parsers give several)."""
+    return " ".join(str(err).split())
+
+
 def _fmt(v, spec=".3g") -> str:
     return "n/a" if v is None else format(v, spec)
 
@@ -108,12 +113,12 @@ def main(argv=None) -> int:
         print(f"{PROG}: interrupted", file=sys.stderr)
         return 130
     except (ConfigError, BagError, ReplayError, OSError) as err:
-        print(f"{PROG}: error: {err}", file=sys.stderr)
+        print(f"{PROG}: error: {one_line(err)}", file=sys.stderr)
         return 1
     except Exception as err:  # never a traceback for the user; FTO_DEBUG=1 shows it
         if os.environ.get("FTO_DEBUG"):
             raise
-        print(f"{PROG}: error: unexpected {type(err).__name__}: {err} "
+        print(f"{PROG}: error: unexpected {type(err).__name__}: {one_line(err)} "
               f"(FTO_DEBUG=1 shows the traceback)", file=sys.stderr)
         return 1
     print(summary(metrics))

@@ -41,8 +41,9 @@ def plot_replay(path: str | Path, *, t: np.ndarray, estimate: np.ndarray,
     from matplotlib.figure import Figure
 
     t = np.asarray(t, dtype=float)
-    estimate = np.asarray(estimate, dtype=float).reshape(len(t), -1)
-    n = estimate.shape[1]
+    estimate = np.asarray(estimate, dtype=float)
+    n = estimate.shape[1] if estimate.ndim == 2 else max(len(state_names), 1)
+    estimate = estimate.reshape(len(t), n)
     has_truth = truth is not None and truth_t is not None and len(truth_t) > 0
     has_err = err_norm is not None and err_t is not None and len(err_t) > 0
     rows = n + (1 if has_err else 0)
@@ -50,7 +51,7 @@ def plot_replay(path: str | Path, *, t: np.ndarray, estimate: np.ndarray,
     FigureCanvasAgg(fig)
     axes = fig.subplots(rows, 1, sharex=True, squeeze=False)[:, 0]
     if title:
-        fig.suptitle(title, fontsize=10)
+        fig.suptitle(title, fontsize=10, y=0.995)
 
     guaranteed = math.isfinite(guaranteed_time)
     t_mark = t_start + guaranteed_time if guaranteed else None
@@ -68,15 +69,27 @@ def plot_replay(path: str | Path, *, t: np.ndarray, estimate: np.ndarray,
     for i in range(n):
         ax = axes[i]
         name = state_names[i] if i < len(state_names) else f"x{i}"
+        clipped = False
         if has_truth and i < xt.shape[1]:
             ax.plot(tt, xt[:, i], color="black", linewidth=1.0, label="truth")
+            lo, hi = float(np.min(xt[:, i])), float(np.max(xt[:, i]))
+            pad = max(0.5 * (hi - lo), 0.05 * max(abs(lo), abs(hi)), 1e-6)
+            ylim = (lo - pad, hi + pad)
+            # the start-up transient may be orders of magnitude larger: keep the truth readable
+            clipped = bool(np.any(xe[:, i] < ylim[0]) or np.any(xe[:, i] > ylim[1]))
         ax.plot(te, xe[:, i], color="tab:blue", linewidth=0.9,
                 linestyle="--" if has_truth else "-", label="estimate")
+        if clipped:
+            ax.set_ylim(*ylim)
+            ax.text(0.99, 0.04, "estimate clipped (transient off scale)", transform=ax.transAxes,
+                    fontsize=7, ha="right", va="bottom", color="tab:blue")
         mark(ax, label=(i == 0))
         ax.set_ylabel(name)
         ax.grid(True, alpha=0.3)
-        if i == 0:
-            ax.legend(loc="upper right", fontsize=8)
+        if i == 0:  # one legend for the state panels, above them: it hides no curve
+            handles, labels = ax.get_legend_handles_labels()
+            fig.legend(handles, labels, loc="upper center", ncol=len(labels), fontsize=8,
+                       bbox_to_anchor=(0.5, 0.965), frameon=False)
     if has_err:
         ax = axes[-1]
         et, en = _decimate(np.asarray(err_t, float), np.asarray(err_norm, float))
@@ -92,12 +105,15 @@ def plot_replay(path: str | Path, *, t: np.ndarray, estimate: np.ndarray,
         mark(ax, label=True)
         ax.set_ylabel("error norm")
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(loc="upper right", fontsize=8)
+        ax.legend(loc="upper right", fontsize=7, framealpha=0.8)
+    if len(t) == 0:
+        axes[0].text(0.5, 0.5, "no accepted samples", transform=axes[0].transAxes,
+                     ha="center", va="center", fontsize=12, color="tab:red")
     if not guaranteed:
         axes[0].text(0.01, 0.95, "no guaranteed convergence time (asymptotic observer)",
                      transform=axes[0].transAxes, fontsize=8, va="top", color="tab:red")
     axes[-1].set_xlabel("bag time (s)")
-    fig.tight_layout()
+    fig.tight_layout(rect=(0.0, 0.0, 1.0, 0.955))
     path = Path(path)
     fig.savefig(path, format="png")
     return path

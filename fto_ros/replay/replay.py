@@ -16,11 +16,16 @@ How the messages drive the runner (what the node does on live topics):
   applies from t on.
 - ``source: joint_states``: each JointState is turned into ``(t, y, u)`` by
   :func:`~fto_ros.runner.messages.joint_state_sample` (``t`` = header stamp);
-  ``u`` (when input joints are configured) is set before ``y`` is processed.
-- Every accepted sample publishes ``state_estimate``, ``convergence``,
+  a stamp more than ``time.future_tolerance`` ahead of the log time (the sim
+  clock) is rejected as ``future_stamp``; ``u`` (when input joints are
+  configured) is set before ``y`` is processed, and a rejected ``u`` drops the
+  sample.
+- Every accepted sample publishes ``state_estimate`` and ``convergence``
+  (Float64MultiArray with one labelled layout dimension, like the node; a
+  non-finite value, i.e. guaranteed_time = inf, is published as -1),
   ``unknown_input_estimate`` (observers that have one) and
-  ``estimated_joint_states`` (when configured) under the node's name, with log
-  time = sample time.  ``/diagnostics`` gets ``runner.status(t)`` every
+  ``estimated_joint_states`` (when configured) under ``/<node name>/``, with
+  log time = sample time.  ``/diagnostics`` gets ``runner.status(t)`` every
   ``diagnostics.period`` seconds of bag time (1 s by default), plus a final one.
 
 Speed: the bag is read with a small MCAP fast path (chunks decompressed and
@@ -32,6 +37,8 @@ went.
 """
 from __future__ import annotations
 
+import functools
+import gc
 import json
 import math
 import struct
@@ -45,9 +52,10 @@ import numpy as np
 import yaml
 
 from ..bag import BagError, BagReader, BagWriter
-from ..core.errors import ConfigError
+from ..bag.reader import jazzy_typestore
+from ..observers.base import Observer
 from ..runner.messages import joint_state_sample
-from ..runner.runner import CONVERGENCE_FIELDS, LEVEL_NAMES, Output, Runner
+from ..runner.runner import CONVERGENCE_FIELDS, LEVEL_NAMES, Runner
 from ..runner.settings import load_params_file
 from . import metrics as M
 
@@ -101,7 +109,7 @@ _MAGIC = b"\x89MCAP0\r\n"
 _REC = struct.Struct("<BQ")
 _MSG = struct.Struct("<HIQ")          # channel id, sequence, log time (publish time follows)
 _U16, _U32, _U64 = struct.Struct("<H"), struct.Struct("<I"), struct.Struct("<Q")
-#: the fast path reads whole files into memory; larger bags stream through BagReader
+#: the fast path reads whole files into memory; larger bags go through BagReader
 FAST_PATH_MAX_BYTES = 1 << 30
 
 
@@ -109,6 +117,7 @@ class _NotFast(Exception):
     """The fast MCAP path cannot read this bag; use BagReader."""
 
 
+@functools.lru_cache(maxsize=None)
 def _decompressor(name: str) -> Callable[[bytes, int], bytes]:
     if name == "":
         return lambda data, size: data
@@ -234,47 +243,100 @@ def _read_fast(bag: Path, topics: list[str]) -> dict[str, tuple[np.ndarray, list
 # --------------------------------------------------------------------------------------
 # CDR: decoding Float64MultiArray, encoding outputs
 # --------------------------------------------------------------------------------------
-_CDR_LE = b"\x00\x01\x00\x00"
+_CDR_LE = b"\x00\x01\x00\x00"  # CDR, little endian
 
 
-def _f64_prefix(n: int) -> bytes:
-    """CDR bytes of a Float64MultiArray (empty layout) up to its first double."""
-    return _CDR_LE + struct.pack("<III", 0, 0, n) + (b"\x00" * 4 if n else b"")
+class _Cdr:
+    """Little-endian XCDR1 bytes; alignment counts from the end of the 4-byte header."""
+
+    def __init__(self):
+        self.buf = bytearray(_CDR_LE)
+
+    def align(self, a: int) -> None:
+        self.buf += b"\x00" * ((4 - len(self.buf)) % a)
+
+    def u32(self, v: int) -> None:
+        self.align(4)
+        self.buf += _U32.pack(v)
+
+    def string(self, s: str) -> None:
+        b = s.encode() + b"\x00"
+        self.u32(len(b))
+        self.buf += b
+
+
+def f64_prefix(n: int, label: str | None = None) -> bytes:
+    """CDR bytes of a Float64MultiArray of n values up to its first double.
+
+    ``label`` None: empty layout; else one dimension ``(label, n, n)`` (what
+    the live node publishes).
+    """
+    c = _Cdr()
+    if label is None:
+        c.u32(0)
+    else:
+        c.u32(1)
+        c.string(label)
+        c.u32(n)
+        c.u32(n)
+    c.u32(0)  # data_offset
+    c.u32(n)
+    if n:
+        c.align(8)
+    return bytes(c.buf)
+
+
+def _f64_data_at(p) -> tuple[int, int]:
+    """(offset of the first double, count) of a little-endian CDR Float64MultiArray."""
+    if bytes(p[:4]) != _CDR_LE:
+        raise ValueError("not little-endian CDR")
+    pos = 4
+    (ndims,) = _U32.unpack_from(p, pos)
+    pos += 4
+    for _ in range(ndims):
+        pos += (4 - pos) % 4
+        (slen,) = _U32.unpack_from(p, pos)
+        pos += 4 + slen
+        pos += (4 - pos) % 4
+        pos += 8  # size, stride
+    pos += (4 - pos) % 4
+    _offset, count = struct.unpack_from("<II", p, pos)
+    pos += 8
+    if count:
+        pos += (4 - pos) % 8
+    if pos + 8 * count > len(p):
+        raise ValueError("truncated")
+    return pos, count
 
 
 def decode_float_arrays(payloads: list, typestore) -> list:
     """The ``data`` of raw CDR Float64MultiArray payloads, as lists of floats.
 
-    Bulk numpy decoding when every payload has the same length and an empty
-    layout (the usual case); per message otherwise, with the rosbags
-    deserialiser for anything but little-endian CDR with an empty layout.
+    In bulk with numpy when every payload has the same length and the same
+    bytes before its data (the usual case: one publisher, fixed layout); per
+    message otherwise, with the rosbags deserialiser for anything unusual
+    (big-endian CDR, malformed payloads).
     """
     if not payloads:
         return []
-    lengths = {len(p) for p in payloads}
-    if len(lengths) == 1:
-        length = lengths.pop()
-        if length >= 16:
+    try:
+        off, count = _f64_data_at(payloads[0])
+        length = len(payloads[0])
+        if all(len(p) == length for p in payloads):
             raw = np.frombuffer(b"".join(payloads), dtype=np.uint8).reshape(len(payloads), length)
-            head = raw[:, :16].copy().view("<u4")  # header, dims, data_offset, count
-            count = int(head[0, 3])
-            expected = 20 + 8 * count if count else 16
-            if (np.all(raw[:, :4] == np.frombuffer(_CDR_LE, np.uint8)) and not np.any(head[:, 1])
-                    and np.all(head[:, 3] == count) and length in (expected, expected + 4)):
+            if np.array_equal(raw[:, :off], np.broadcast_to(raw[0, :off], (len(payloads), off))):
                 if count == 0:
                     return [[] for _ in payloads]
-                return raw[:, 20:20 + 8 * count].copy().view("<f8").tolist()
+                return raw[:, off:off + 8 * count].copy().view("<f8").tolist()
+    except (ValueError, struct.error):
+        pass
     out = []
     for p in payloads:
-        if len(p) >= 16 and bytes(p[:4]) == _CDR_LE and not _U32.unpack_from(p, 4)[0]:
-            (count,) = _U32.unpack_from(p, 12)
-            if count == 0:
-                out.append([])
-                continue
-            if len(p) >= 20 + 8 * count:
-                out.append(list(struct.unpack_from(f"<{count}d", p, 20)))
-                continue
-        out.append(typestore.deserialize_cdr(bytes(p), F64_ARRAY).data.tolist())
+        try:
+            off, count = _f64_data_at(p)
+            out.append(list(struct.unpack_from(f"<{count}d", p, off)))
+        except (ValueError, struct.error):
+            out.append(typestore.deserialize_cdr(bytes(p), F64_ARRAY).data.tolist())
     return out
 
 
@@ -290,32 +352,44 @@ class _Encoders:
         T = typestore.types
         self._F64 = T[F64_ARRAY]
         self._Layout = T["std_msgs/msg/MultiArrayLayout"]
+        self._Dim = T["std_msgs/msg/MultiArrayDimension"]
         self._JS = T[JOINT_STATE]
         self._Header = T["std_msgs/msg/Header"]
         self._Time = T["builtin_interfaces/msg/Time"]
-        self._f64: dict[int, Callable[[np.ndarray], bytes]] = {}
+        self._f64: dict[tuple, Callable[[np.ndarray], bytes]] = {}
         self._js: dict[tuple, Callable] = {}
         self.fallbacks: list[str] = []
 
-    def _rosbags_f64(self, x: np.ndarray) -> bytes:
-        msg = self._F64(layout=self._Layout(dim=[], data_offset=0),
+    def _rosbags_f64(self, x: np.ndarray, label: str | None) -> bytes:
+        n = len(x)
+        dims = [] if label is None else [self._Dim(label=label, size=n, stride=n)]
+        msg = self._F64(layout=self._Layout(dim=dims, data_offset=0),
                         data=np.ascontiguousarray(x, dtype=np.float64))
         return bytes(self.ts.serialize_cdr(msg, F64_ARRAY))
 
-    def float_array(self, n: int) -> Callable[[np.ndarray], bytes]:
-        """``x (float64, length n) -> CDR bytes``."""
-        enc = self._f64.get(n)
+    def float_array(self, n: int, label: str | None = None,
+                    values: str = "array") -> Callable[[Any], bytes]:
+        """``x (length n) -> CDR bytes`` (layout: see :func:`f64_prefix`).
+
+        ``values``: "array" for a float64 numpy array, "list" for a list of floats.
+        """
+        key = (n, label, values)
+        enc = self._f64.get(key)
         if enc is None:
-            prefix = _f64_prefix(n)
-
-            def enc(x, _p=prefix):
-                return _p + x.tobytes()
-
+            prefix = f64_prefix(n, label)
+            if values == "array":
+                def enc(x, _p=prefix):
+                    return _p + x.tobytes()
+            else:
+                def enc(x, _p=prefix, _pack=struct.Struct(f"<{n}d").pack):
+                    return _p + _pack(*x)
             probe = np.arange(n, dtype=np.float64) * 1.25 - 0.5
-            if enc(probe) != self._rosbags_f64(probe):
+            if enc(probe if values == "array" else probe.tolist()) != self._rosbags_f64(probe, label):
                 self.fallbacks.append(f"Float64MultiArray[{n}]")
-                enc = self._rosbags_f64
-            self._f64[n] = enc
+
+                def enc(x, _label=label):
+                    return self._rosbags_f64(np.asarray(x, dtype=np.float64), _label)
+            self._f64[key] = enc
         return enc
 
     def _rosbags_js(self, names, sec, nsec, pos, vel, eff) -> bytes:
@@ -401,33 +475,9 @@ class _Encoders:
 # --------------------------------------------------------------------------------------
 # writing
 # --------------------------------------------------------------------------------------
-class _Sink:
-    """Raw (already serialised) writes into a BagWriter, plus message counts."""
-
-    def __init__(self, bag: BagWriter):
-        self.bag = bag
-        self.counts: dict[str, int] = {}
-
-    def channel(self, topic: str, msgtype: str) -> Callable[[int, bytes], None]:
-        """A ``write(t_ns, cdr_bytes)`` function for ``topic``."""
-        bag = self.bag
-        self.counts.setdefault(topic, 0)
-        counts = self.counts
-        raw = getattr(bag, "raw_writer", None)
-        if raw is not None:  # public API, if the bag layer offers it
-            write = raw(topic, msgtype)
-        else:
-            conn = bag._connection(topic, msgtype)
-            wr = bag._writer.write
-
-            def write(t_ns, data, _c=conn, _w=wr):
-                _w(_c, t_ns, data)
-
-        def counted(t_ns, data, _w=write, _t=topic):
-            _w(t_ns, data)
-            counts[_t] += 1
-
-        return counted
+def _raw_writer(bag: BagWriter, topic: str, msgtype: str) -> Callable[[int, bytes], None]:
+    """A ``write(t_ns, cdr_bytes)`` function for ``topic`` of an open BagWriter."""
+    return bag.raw_writer(topic, msgtype)
 
 
 # --------------------------------------------------------------------------------------
@@ -446,15 +496,13 @@ class _Progress:
         self.drawn = False
 
     def update(self, t_ns: int) -> None:
-        if not self.enabled:
-            return
-        wall = time.perf_counter() - self.start
-        if wall < self.delay:
+        if not self.enabled or time.perf_counter() - self.start < self.delay:
             return
         frac = min(max((t_ns - self.t0) / self.span, 0.0), 1.0)
         fill = int(frac * self.WIDTH)
-        sys.stderr.write(f"\rreplay [{'#' * fill}{'.' * (self.WIDTH - fill)}] {frac * 100:5.1f}% "
-                         f"{(t_ns - self.t0) / 1e9:8.2f} / {self.span / 1e9:.2f} s bag time")
+        sys.stderr.write(f"\rfto-replay [{'#' * fill}{'.' * (self.WIDTH - fill)}] "
+                         f"{frac * 100:5.1f}%  {(t_ns - self.t0) / 1e9:.1f} / "
+                         f"{self.span / 1e9:.1f} s of bag")
         sys.stderr.flush()
         self.drawn = True
 
@@ -466,29 +514,32 @@ class _Progress:
 
 
 # --------------------------------------------------------------------------------------
-# the replay
+# reading the bag into streams
 # --------------------------------------------------------------------------------------
+_EMPTY = (np.zeros(0, np.int64), [])
+
+
 @dataclass
 class _Streams:
-    """The messages of one replay, grouped by role, with log times (ns)."""
+    """The messages of one replay by role: ``(log times ns, values or messages)``."""
 
-    inputs: tuple[np.ndarray, list] = field(default_factory=lambda: (np.zeros(0, np.int64), []))
-    meas: tuple[np.ndarray, list] = field(default_factory=lambda: (np.zeros(0, np.int64), []))
-    joints: tuple[np.ndarray, list] = field(default_factory=lambda: (np.zeros(0, np.int64), []))
-    truth: tuple[np.ndarray, list] = field(default_factory=lambda: (np.zeros(0, np.int64), []))
-    truth_copy: list = field(default_factory=list)   # raw bytes (fast path) or messages
+    inputs: tuple = _EMPTY
+    meas: tuple = _EMPTY
+    joints: tuple = _EMPTY
+    truth: tuple = _EMPTY
+    truth_copy: list = field(default_factory=list)  # raw CDR (fast path) or messages
     truth_raw: bool = True
     reader: str = ""
 
 
 def _read_streams(bag_path: Path, reader: BagReader, roles: dict[str, str],
                   typestore) -> _Streams:
-    """Read and decode the role topics (role -> topic name) of the bag."""
+    """Read and decode the topics of ``roles`` (role -> topic)."""
     topics = sorted(set(roles.values()))
     s = _Streams()
     try:
         raw = _read_fast(bag_path, topics)
-        s.reader = "mcap fast path"
+        s.reader = "MCAP fast path"
     except _NotFast as why:
         raw = None
         s.reader = f"rosbags BagReader ({why})"
@@ -496,15 +547,12 @@ def _read_streams(bag_path: Path, reader: BagReader, roles: dict[str, str],
         for role, topic in roles.items():
             t, payloads = raw[topic]
             if role == "joints":
-                msgs = [typestore.deserialize_cdr(bytes(p), JOINT_STATE) for p in payloads]
-                s.joints = (t, msgs)
+                s.joints = (t, [typestore.deserialize_cdr(bytes(p), JOINT_STATE) for p in payloads])
             else:
-                values = decode_float_arrays(payloads, typestore)
-                setattr(s, role, (t, values))
+                setattr(s, role, (t, decode_float_arrays(payloads, typestore)))
                 if role == "truth":
                     s.truth_copy = payloads
         return s
-    # fallback: rosbags deserialisation of every message
     lists: dict[str, tuple[list, list]] = {topic: ([], []) for topic in topics}
     for topic, t_ns, msg in reader.messages(topics):
         lists[topic][0].append(t_ns)
@@ -524,11 +572,229 @@ def _read_streams(bag_path: Path, reader: BagReader, roles: dict[str, str],
 def _check_topic(topics: dict, topic: str, msgtype: str, what: str, bag_path: Path) -> None:
     if topic not in topics:
         listing = ", ".join(f"{k} ({v.msgtype})" for k, v in topics.items()) or "none"
-        raise ReplayError(f"{bag_path}: the bag has no {what} topic {topic!r} "
-                          f"(set by the params file); the bag's topics: {listing}")
+        raise ReplayError(f"{bag_path}: the bag has no {what} topic {topic} (from the params "
+                          f"file); the bag's topics: {listing}")
     if topics[topic].msgtype != msgtype:
-        raise ReplayError(f"{bag_path}: topic {topic} has type {topics[topic].msgtype}, "
-                          f"the {what} must be {msgtype}")
+        raise ReplayError(f"{bag_path}: topic {topic} has type {topics[topic].msgtype}; "
+                          f"the {what} topic must be {msgtype}")
+
+
+# --------------------------------------------------------------------------------------
+# the replay
+# --------------------------------------------------------------------------------------
+@dataclass
+class _Run:
+    """What the replay loop produced."""
+
+    info: Any = None
+    roles: dict = field(default_factory=dict)
+    truth_topic: str = ""
+    truth_note: str | None = None
+    streams: _Streams | None = None
+    est_t: list = field(default_factory=list)
+    est_x: list = field(default_factory=list)
+    est_conv: list = field(default_factory=list)
+    proc_s: list = field(default_factory=list)
+    runner_s: float = 0.0
+    counts: dict = field(default_factory=dict)
+    status_levels: dict = field(default_factory=dict)
+    final_status: Any = None
+    fallbacks: list = field(default_factory=list)
+    timing: dict = field(default_factory=dict)
+
+
+def _run(runner: Runner, bag_path: Path, out_dir: Path, fqn: str, overwrite: bool,
+         progress: bool, custom: dict[str, str]) -> _Run:
+    """Read the bag, drive the runner, write the output bag (the timed part)."""
+    settings, obs = runner.settings, runner.observer
+    r = _Run()
+    wall0 = time.perf_counter()
+    with BagReader(bag_path) as reader:
+        r.info = info = reader.info()
+        topics = info.topics
+        roles = r.roles
+        if settings["source"] == "topics":
+            roles["meas"] = resolve_topic(settings["topics.measured_output"], fqn)
+            _check_topic(topics, roles["meas"], F64_ARRAY, "measured_output", bag_path)
+            if obs.n_inputs:
+                roles["inputs"] = resolve_topic(settings["topics.input"], fqn)
+                _check_topic(topics, roles["inputs"], F64_ARRAY,
+                             f"input (the observer has {obs.n_inputs} known input(s))", bag_path)
+        else:
+            roles["joints"] = resolve_topic(settings["topics.joint_states"], fqn)
+            _check_topic(topics, roles["joints"], JOINT_STATE, "joint_states", bag_path)
+        r.truth_topic = truth_topic = resolve_topic(settings["topics.true_state"], fqn)
+        if truth_topic not in topics:
+            r.truth_note = f"no ground truth: the bag has no topic {truth_topic}"
+        elif topics[truth_topic].msgtype != F64_ARRAY:
+            r.truth_note = (f"no ground truth: {truth_topic} is {topics[truth_topic].msgtype}, "
+                            f"not {F64_ARRAY}")
+        else:
+            roles["truth"] = truth_topic
+        typestore = getattr(reader, "typestore", None) or jazzy_typestore()
+        r.streams = streams = _read_streams(bag_path, reader, roles, typestore)
+    wall_read = time.perf_counter()
+
+    # events in log-time order; at equal times inputs, then samples, then truth (stable)
+    parts = [(streams.inputs[0], K_INPUT, _KIND_INPUT), (streams.meas[0], K_MEAS, _KIND_MEAS),
+             (streams.joints[0], K_JOINT, _KIND_JOINT), (streams.truth[0], K_TRUTH, _KIND_TRUTH)]
+    t_all = np.concatenate([p[0] for p in parts])
+    order = np.lexsort((np.concatenate([np.full(p[0].size, p[1], np.int8) for p in parts]), t_all))
+    ev_t = t_all[order].tolist()
+    ev_kind = np.concatenate([np.full(p[0].size, p[2], np.int8) for p in parts])[order].tolist()
+    ev_idx = np.concatenate([np.arange(p[0].size) for p in parts])[order].tolist()
+    wall_order = time.perf_counter()
+
+    enc = _Encoders(typestore)
+    period_ns = max(int(round(settings["diagnostics.period"] * 1e9)), 1)
+    # as the node: status name "<node name>: observer", hardware_id defaults to the observer type
+    diag_name = f"{fqn.rsplit('/', 1)[-1]}: observer"
+    hw_id = settings["diagnostics.hardware_id"] or runner.observer_type
+    future_tol_ns = int(round(settings["time.future_tolerance"] * 1e9))
+    reject = runner.reject  # as the node does
+    received = {"measured_output": streams.meas[0], "input": streams.inputs[0],
+                "joint_states": streams.joints[0]}
+    t_first = ev_t[0] if ev_t else info.start_ns
+    t_last = ev_t[-1] if ev_t else info.end_ns
+    tick_ns = max((t_last - t_first) // 200, 1)
+    bar = _Progress(progress, t_first, t_last)
+    est_t, est_x, est_conv, proc_s = r.est_t, r.est_x, r.est_conv, r.proc_s
+    counts = r.counts
+    inputs, meas, joints = streams.inputs[1], streams.meas[1], streams.joints[1]
+    truth_copy = streams.truth_copy
+    set_input, process = runner.set_input, runner.process
+    perf = time.perf_counter
+    inf = math.inf
+    runner_s = 0.0
+    wall_loop0 = time.perf_counter()
+    with BagWriter(out_dir, overwrite=overwrite, custom_data=custom) as bag:
+        topic_est, topic_conv = f"{fqn}/state_estimate", f"{fqn}/convergence"
+        topic_ui, topic_js = f"{fqn}/unknown_input_estimate", f"{fqn}/estimated_joint_states"
+        w_est = _raw_writer(bag, topic_est, F64_ARRAY)
+        w_conv = _raw_writer(bag, topic_conv, F64_ARRAY)
+        # the node's layouts: one labelled dimension on state_estimate and convergence
+        enc_est = enc.float_array(obs.n_states, ",".join(obs.state_names))
+        enc_conv = enc.float_array(len(CONVERGENCE_FIELDS), ",".join(CONVERGENCE_FIELDS), "list")
+        w_ui = w_js = enc_js = None
+        if type(obs).unknown_input is not Observer.unknown_input:  # the class identifies one
+            w_ui = _raw_writer(bag, topic_ui, F64_ARRAY)
+        if settings["estimated_joint_states.joint_names"]:
+            w_js = _raw_writer(bag, topic_js, JOINT_STATE)
+        n_ui = n_js = 0
+        w_truth = None
+        if "truth" in roles:
+            if streams.truth_raw:
+                w_truth = _raw_writer(bag, truth_topic, F64_ARRAY)
+            else:
+                w_truth = functools.partial(bag.write_message, truth_topic)
+
+        def diagnostics(t_ns: int, side: str = "left"):
+            st = runner.status(t_ns / 1e9)
+            # the node adds its own counters; the replay's equivalents (no wall-clock rates)
+            values = list(st.values) + [
+                ("enabled", "true"), ("source", settings["source"]),
+                *((f"messages received: {k}", str(int(np.searchsorted(v, t_ns, side))))
+                  for k, v in received.items()),
+                ("estimates published", str(len(est_t))), ("sim time", "true (offline replay)")]
+            bag.diagnostics("/diagnostics", t_ns, [{
+                "level": st.level, "name": diag_name, "message": st.message,
+                "hardware_id": hw_id, "values": values}])
+            counts["/diagnostics"] = counts.get("/diagnostics", 0) + 1
+            level = LEVEL_NAMES.get(st.level, str(st.level))
+            r.status_levels[level] = r.status_levels.get(level, 0) + 1
+            return st
+
+        next_diag = t_first + period_ns
+        next_tick = min(next_diag, t_first + tick_ns)
+        for t_ns, kind, i in zip(ev_t, ev_kind, ev_idx):
+            if t_ns >= next_tick:
+                while t_ns >= next_diag:
+                    diagnostics(next_diag)
+                    next_diag += period_ns
+                bar.update(t_ns)
+                next_tick = min(next_diag, t_ns + tick_ns)
+            if kind == _KIND_MEAS:
+                c0 = perf()
+                out = process(t_ns / 1e9, meas[i])
+                c1 = perf()
+                runner_s += c1 - c0
+                if out.__class__ is str:
+                    continue
+                proc_s.append(c1 - c0)
+                s_ns = t_ns
+            elif kind == _KIND_INPUT:
+                c0 = perf()
+                set_input(t_ns / 1e9, inputs[i])
+                runner_s += perf() - c0
+                continue
+            elif kind == _KIND_TRUTH:
+                w_truth(t_ns, truth_copy[i])
+                continue
+            else:  # a JointState (source: joint_states); its sample time is the header stamp
+                msg = joints[i]
+                c0 = perf()
+                sample = joint_state_sample(msg, settings)
+                if sample.__class__ is str:
+                    reject(sample)
+                    runner_s += perf() - c0
+                    continue
+                t, y, u = sample
+                s_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+                if s_ns - t_ns > future_tol_ns:  # ahead of the (sim) clock = the log time
+                    reject("future_stamp")
+                    runner_s += perf() - c0
+                    continue
+                if u is not None and set_input(t, u) is not None:
+                    runner_s += perf() - c0
+                    continue  # counted by the runner; never pair y with a bad u
+                c1 = perf()
+                out = process(t, y)
+                c2 = perf()
+                runner_s += c2 - c0
+                if out.__class__ is str:
+                    continue
+                proc_s.append(c2 - c1)
+            # publish what the node publishes, log time = sample time
+            x = out.estimate
+            est_t.append(s_ns)
+            est_x.append(x)
+            est_conv.append(out.convergence)
+            w_est(s_ns, enc_est(x))
+            # as the node: non-finite (guaranteed_time = inf: no guarantee) published as -1.0
+            w_conv(s_ns, enc_conv([v if -inf < v < inf else -1.0
+                                   for v in out.convergence.tolist()]))
+            if out.unknown_input is not None and w_ui is not None:
+                ui = np.asarray(out.unknown_input, dtype=np.float64)
+                w_ui(s_ns, enc.float_array(ui.size)(ui))
+                n_ui += 1
+            if out.joint_state is not None and w_js is not None:
+                names, pos, vel, eff = out.joint_state
+                if enc_js is None:
+                    enc_js = enc.joint_state(names, (len(pos), len(vel), len(eff)))
+                w_js(s_ns, enc_js(s_ns // 1_000_000_000, s_ns % 1_000_000_000, pos, vel, eff))
+                n_js += 1
+        r.final_status = diagnostics(t_last, "right")
+        bar.done()
+        wall_loop1 = time.perf_counter()
+        counts[topic_est] = counts[topic_conv] = len(est_t)
+        if w_ui is not None:
+            counts[topic_ui] = n_ui
+        if w_js is not None:
+            counts[topic_js] = n_js
+        if w_truth is not None:
+            counts[truth_topic] = len(truth_copy)
+    wall_end = time.perf_counter()
+    r.runner_s = runner_s
+    r.fallbacks = enc.fallbacks
+    r.timing = {
+        "read_decode": wall_read - wall0,
+        "order_events": wall_order - wall_read,
+        "runner": runner_s,
+        "serialize_write": (wall_loop1 - wall_loop0) - runner_s,
+        "close_output": wall_end - wall_loop1,
+        "replay_total": wall_end - wall0,
+    }
+    return r
 
 
 def replay(bag_path, params_path, out_dir, *, node_name: str | None = None,
@@ -545,7 +811,7 @@ def replay(bag_path, params_path, out_dir, *, node_name: str | None = None,
         node_name: node name for the params block and the output topic
             namespace (default ``observer_node``).
         progress: draw a progress bar on stderr (only on a terminal, and only
-            when the replay takes more than half a second).
+            once the replay has taken half a second).
         after: settle time (s after the observer's (re)start) for the
             "after settling" errors; default guaranteed_time + 0.01 s, or
             0.11 s for observers without a guarantee.
@@ -553,239 +819,103 @@ def replay(bag_path, params_path, out_dir, *, node_name: str | None = None,
         plot: write ``replay.png``.
 
     Returns the metrics (also written to ``metrics.json``).
-    Raises ConfigError (params), BagError (bags), ReplayError (anything else
-    that stops the replay), each with a one-line message.
+    Raises ConfigError (params), BagError (bags, existing output), ReplayError
+    (anything else that stops the replay), each with a one-line message.
     """
-    if not (isinstance(tolerance, (int, float)) and math.isfinite(tolerance) and tolerance > 0):
+    if isinstance(tolerance, bool) or not isinstance(tolerance, (int, float)) \
+            or not (math.isfinite(tolerance) and tolerance > 0):
         raise ReplayError(f"tolerance must be a positive number, got {tolerance!r}")
-    if after is not None and not (math.isfinite(after) and after >= 0):
+    if after is not None and not (isinstance(after, (int, float)) and math.isfinite(after)
+                                  and after >= 0):
         raise ReplayError(f"after must be a finite number >= 0, got {after!r}")
     bag_path, params_path, out_dir = Path(bag_path), Path(params_path), Path(out_dir)
     fqn = node_fqn(node_name)
-    flat = load_params_file(params_path, node_name)
-    runner = Runner(flat)
-    settings, obs = runner.settings, runner.observer
-    if out_dir.exists() and not overwrite:
+    runner = Runner(load_params_file(params_path, node_name))
+    jazzy_typestore()  # one-time library set-up (~50 ms on first use), not part of the replay
+    obs = runner.observer
+    if (out_dir.exists() or out_dir.is_symlink()) and not overwrite:
         raise BagError(f"{out_dir}: output exists already (remove it or pass --overwrite)")
-
-    # ---- read --------------------------------------------------------------------------
-    wall0 = time.perf_counter()
-    with BagReader(bag_path) as reader:
-        info = reader.info()
-        topics = info.topics
-        roles: dict[str, str] = {}
-        source = settings["source"]
-        if source == "topics":
-            roles["meas"] = resolve_topic(settings["topics.measured_output"], fqn)
-            _check_topic(topics, roles["meas"], F64_ARRAY, "measured_output", bag_path)
-            if obs.n_inputs:
-                roles["inputs"] = resolve_topic(settings["topics.input"], fqn)
-                _check_topic(topics, roles["inputs"], F64_ARRAY,
-                             f"input (the observer has {obs.n_inputs} known input(s))", bag_path)
-        else:
-            roles["joints"] = resolve_topic(settings["topics.joint_states"], fqn)
-            _check_topic(topics, roles["joints"], JOINT_STATE, "joint_states", bag_path)
-        truth_topic = resolve_topic(settings["topics.true_state"], fqn)
-        truth_note = None
-        if truth_topic not in topics:
-            truth_note = f"no ground truth: the bag has no topic {truth_topic}"
-        elif topics[truth_topic].msgtype != F64_ARRAY:
-            truth_note = (f"no ground truth: {truth_topic} is {topics[truth_topic].msgtype}, "
-                          f"not {F64_ARRAY}")
-        else:
-            roles["truth"] = truth_topic
-        typestore = reader._typestore if hasattr(reader, "_typestore") else None
-        if typestore is None:
-            from ..bag.reader import jazzy_typestore
-            typestore = jazzy_typestore()
-        streams = _read_streams(bag_path, reader, roles, typestore)
-    wall_read = time.perf_counter()
-
-    # ---- order the events ----------------------------------------------------------------
-    parts = [(streams.inputs[0], K_INPUT, _KIND_INPUT), (streams.meas[0], K_MEAS, _KIND_MEAS),
-             (streams.joints[0], K_JOINT, _KIND_JOINT), (streams.truth[0], K_TRUTH, _KIND_TRUTH)]
-    t_all = np.concatenate([p[0] for p in parts])
-    prio_all = np.concatenate([np.full(p[0].size, p[1], np.int8) for p in parts])
-    kind_all = np.concatenate([np.full(p[0].size, p[2], np.int8) for p in parts])
-    idx_all = np.concatenate([np.arange(p[0].size) for p in parts])
-    order = np.lexsort((prio_all, t_all))
-    ev_t = t_all[order].tolist()
-    ev_kind = kind_all[order].tolist()
-    ev_idx = idx_all[order].tolist()
-    wall_sort = time.perf_counter()
-
-    # ---- run -----------------------------------------------------------------------------
-    enc = _Encoders(typestore)
-    period_ns = max(int(round(settings["diagnostics.period"] * 1e9)), 1)
-    diag_name = f"{fqn.lstrip('/')}: state observer"
-    hw_id = settings["diagnostics.hardware_id"]
-    status_levels: dict[str, int] = {}
-    proc_us: list[float] = []
-    est_t: list[int] = []
-    est_x: list[np.ndarray] = []
-    est_conv: list[np.ndarray] = []
-    runner_s = 0.0
-    final_status = None
-    n_events = len(ev_t)
-    t_first = ev_t[0] if n_events else info.start_ns
-    t_last = ev_t[-1] if n_events else info.end_ns
-    out_topics = {name: f"{fqn}/{name}" for name in
-                  ("state_estimate", "convergence", "unknown_input_estimate",
-                   "estimated_joint_states")}
-    bar = _Progress(progress, t_first, t_last)
-    custom = {"fto_ros.replay.source_bag": str(bag_path),
-              "fto_ros.replay.params_file": str(params_path),
-              "fto_ros.replay.observer_type": obs.TYPE}
-    wall_loop0 = time.perf_counter()
-    with BagWriter(out_dir, overwrite=overwrite, custom_data=custom) as bag:
-        sink = _Sink(bag)
-        w_est = sink.channel(out_topics["state_estimate"], F64_ARRAY)
-        w_conv = sink.channel(out_topics["convergence"], F64_ARRAY)
-        w_ui = w_js = None
-        enc_est = enc.float_array(obs.n_states)
-        enc_conv = enc.float_array(len(CONVERGENCE_FIELDS))
-        enc_js = None
-        if "truth" in roles:
-            if streams.truth_raw:
-                w_truth = sink.channel(truth_topic, F64_ARRAY)
-            else:
-                def w_truth(t_ns, msg, _topic=truth_topic):
-                    bag.write_message(_topic, t_ns, msg)
-                    sink.counts[_topic] = sink.counts.get(_topic, 0) + 1
-            truth_copy = streams.truth_copy
-        inputs, meas, joints = streams.inputs[1], streams.meas[1], streams.joints[1]
-        set_input, process = runner.set_input, runner.process
-        perf = time.perf_counter
-        next_diag = t_first + period_ns
-
-        def diagnostics(t_ns: int):
-            st = runner.status(t_ns / 1e9)
-            bag.diagnostics("/diagnostics", t_ns, [{
-                "level": st.level, "name": diag_name, "message": st.message,
-                "hardware_id": hw_id, "values": st.values}])
-            sink.counts["/diagnostics"] = sink.counts.get("/diagnostics", 0) + 1
-            name = LEVEL_NAMES.get(st.level, str(st.level))
-            status_levels[name] = status_levels.get(name, 0) + 1
-            return st
-
-        def publish(t_ns: int, out: Output) -> None:
-            nonlocal w_ui, w_js, enc_js
-            est_t.append(t_ns)
-            est_x.append(out.estimate)
-            est_conv.append(out.convergence)
-            w_est(t_ns, enc_est(out.estimate))
-            w_conv(t_ns, enc_conv(out.convergence))
-            ui = out.unknown_input
-            if ui is not None:
-                if w_ui is None:
-                    w_ui = sink.channel(out_topics["unknown_input_estimate"], F64_ARRAY)
-                w_ui(t_ns, enc.float_array(ui.size)(ui))
-            js = out.joint_state
-            if js is not None:
-                names, pos, vel, eff = js
-                if w_js is None:
-                    w_js = sink.channel(out_topics["estimated_joint_states"], JOINT_STATE)
-                enc_j = enc_js if enc_js is not None else enc.joint_state(
-                    names, (len(pos), len(vel), len(eff)))
-                if enc_js is None:
-                    enc_js = enc_j
-                w_js(t_ns, enc_j(t_ns // 1_000_000_000, t_ns % 1_000_000_000, pos, vel, eff))
-
-        for t_ns, kind, i in zip(ev_t, ev_kind, ev_idx):
-            if t_ns >= next_diag:
-                while t_ns >= next_diag:
-                    diagnostics(next_diag)
-                    next_diag += period_ns
-                bar.update(t_ns)
-            if kind == _KIND_MEAS:
-                c0 = perf()
-                out = process(t_ns / 1e9, meas[i])
-                c1 = perf()
-                runner_s += c1 - c0
-                if out.__class__ is not str:
-                    proc_us.append(c1 - c0)
-                    publish(t_ns, out)
-            elif kind == _KIND_INPUT:
-                c0 = perf()
-                set_input(t_ns / 1e9, inputs[i])
-                runner_s += perf() - c0
-            elif kind == _KIND_TRUTH:
-                w_truth(t_ns, truth_copy[i])
-            else:  # JointState source
-                c0 = perf()
-                sample = joint_state_sample(joints[i], settings)
-                if sample.__class__ is str:
-                    runner._reject(sample)  # TODO(lead): public Runner API for this
-                    runner_s += perf() - c0
-                    continue
-                t, y, u = sample
-                if u is not None:
-                    set_input(t, u)
-                c1 = perf()
-                out = process(t, y)
-                c2 = perf()
-                runner_s += c2 - c0
-                if out.__class__ is not str:
-                    proc_us.append(c2 - c1)
-                    stamp = joints[i].header.stamp
-                    publish(stamp.sec * 1_000_000_000 + stamp.nanosec, out)
-        final_status = diagnostics(t_last)
-        bar.done()
-        wall_loop1 = time.perf_counter()
-    wall_end = time.perf_counter()
-
-    # ---- metrics -------------------------------------------------------------------------
+    custom = {"fto_ros.replay.bag": str(bag_path), "fto_ros.replay.params": str(params_path),
+              "fto_ros.replay.observer": obs.TYPE}
+    # the replay allocates many small objects and frees none: the cyclic GC would only
+    # rescan them again and again (it cost up to 2x in the read phase)
+    gc_was_enabled = gc.isenabled()
+    gc.disable()
+    try:
+        run = _run(runner, bag_path, out_dir, fqn, overwrite, progress, custom)
+    finally:
+        if gc_was_enabled:
+            gc.enable()
     m0 = time.perf_counter()
+    metrics, plot_data = _metrics(runner, run, bag_path, params_path, out_dir, fqn, after,
+                                  tolerance)
+    metrics["timing_s"]["metrics"] = time.perf_counter() - m0
+    if plot:
+        p0 = time.perf_counter()
+        from .plot import plot_replay
+        plot_replay(out_dir / "replay.png", **plot_data,
+                    title=f"{obs.TYPE}: {params_path.name} on {bag_path.name}")
+        metrics["plot"] = "replay.png"
+        metrics["timing_s"]["plot"] = time.perf_counter() - p0
+    (out_dir / "metrics.json").write_text(
+        json.dumps(M.json_safe(metrics), indent=2, allow_nan=False) + "\n")
+    return metrics
+
+
+def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_dir: Path,
+             fqn: str, after: float | None, tolerance: float) -> tuple[dict, dict]:
+    """(metrics dict, plot arguments) of a finished run."""
+    obs, settings, info, streams = runner.observer, runner.settings, run.info, run.streams
     names = list(obs.state_names)
     n = obs.n_states
-    t_est_ns = np.asarray(est_t, dtype=np.int64)
-    x_est = np.vstack(est_x) if est_x else np.zeros((0, n))
-    conv = np.vstack(est_conv) if est_conv else np.zeros((0, len(CONVERGENCE_FIELDS)))
+    t_est_ns = np.asarray(run.est_t, dtype=np.int64)
+    x_est = np.vstack(run.est_x) if run.est_x else np.zeros((0, n))
+    conv = np.vstack(run.est_conv) if run.est_conv else np.zeros((0, len(CONVERGENCE_FIELDS)))
     gt = float(obs.guaranteed_time)
     if after is None:
         settle, settle_rule = M.default_settle_time(gt)
     else:
-        settle, settle_rule = float(after), "given (--after)"
+        settle, settle_rule = float(after), "given (after= / --after)"
     t_start_ns = int(t_est_ns[0]) if t_est_ns.size else None
 
-    errors = None
-    conv_time = None
-    err_t = err_norm = None
+    truth_note = run.truth_note
     truth_t = truth_x = None
-    if "truth" in roles:
+    if "truth" in run.roles:
         truth_t = streams.truth[0]
         lengths = {len(v) for v in streams.truth[1]}
         if not truth_t.size:
-            truth_note = f"no ground truth: topic {truth_topic} has no messages"
+            truth_note = f"no ground truth: topic {run.truth_topic} has no messages"
         elif lengths != {n}:
-            truth_note = (f"no error metrics: {truth_topic} carries {sorted(lengths)} values per "
-                          f"message, the observer has {n} states")
+            truth_note = (f"no error metrics: {run.truth_topic} carries {sorted(lengths)} "
+                          f"value(s) per message, the observer has {n} states")
         else:
             truth_x = np.asarray(streams.truth[1], dtype=float)
-    if truth_x is not None:
+    errors = conv_time = err_t = err_norm = None
+    if truth_x is not None and not t_est_ns.size:
+        truth_note = "no accepted samples: nothing to compare with the ground truth"
+    elif truth_x is not None:
         mask, x_at = M.match_truth(t_est_ns, truth_t, truth_x)
         err = x_at[mask] - x_est[mask]
-        settled = conv[mask, 0] >= settle
+        settled = conv[mask, 0] >= settle - 1e-9  # time since (re)start, float round-off
         errors = M.error_stats(err, names, settled)
-        errors["matched_samples"] = int(mask.sum())
-        errors["settled_samples"] = int(settled.sum())
-        errors["unmatched_samples"] = int((~mask).sum())
-        errors["definition"] = ("error = truth - estimate, truth at each estimate's log time "
-                                "(exact ns match, else linear interpolation; estimates outside "
-                                "the truth's time range left out); 'after_settle' = samples "
-                                "whose time since the observer's (re)start >= settle_time_s")
-        if t_start_ns is not None:
+        errors.update(
+            matched_samples=int(mask.sum()), settled_samples=int(settled.sum()),
+            unmatched_samples=int((~mask).sum()),
+            definition="error = truth - estimate, the truth taken at each estimate's log time "
+                       "(exact ns match, else linear interpolation; estimates outside the "
+                       "truth's time range are left out); 'after_settle' = samples whose time "
+                       "since the observer's (re)start is >= settle_time_s")
+        if mask.any():
             t_rel = (t_est_ns[mask] - t_start_ns) / 1e9
-            conv_time = M.convergence_time(t_rel, np.max(np.abs(err), axis=1) if err.size
-                                           else np.zeros(0), tolerance)
+            conv_time = M.convergence_time(t_rel, np.max(np.abs(err), axis=1), tolerance)
             err_t = (t_est_ns[mask] - info.start_ns) / 1e9
             err_norm = np.sqrt(np.sum(err * err, axis=1))
-        if truth_note is None and not mask.any():
+        elif truth_note is None:
             truth_note = "no estimate lies within the ground truth's time range"
     p50_obs, p99_obs = runner.update_time_us()
     duration_s = info.duration_ns / 1e9
-    replay_wall = wall_end - wall0
-    rejected = dict(sorted(runner.rejected.items()))
+    wall = run.timing["replay_total"]
+    source = settings["source"]
     metrics: dict[str, Any] = {
         "schema": METRICS_SCHEMA,
         "bag": str(bag_path),
@@ -793,22 +923,23 @@ def replay(bag_path, params_path, out_dir, *, node_name: str | None = None,
         "node_name": fqn,
         "observer_type": obs.TYPE,
         "state_names": names,
-        "source": settings["source"],
-        "input_topics": {_ROLE_NAMES[k]: v for k, v in roles.items()},
+        "source": source,
+        "input_topics": {_ROLE_NAMES[k]: v for k, v in run.roles.items()},
         "output_bag": str(out_dir),
-        "output_topics": dict(sorted(sink.counts.items())),
-        "plot": "replay.png" if plot else None,
+        "output_topics": dict(sorted(run.counts.items())),
+        "plot": None,
         "bag_start_s": info.start_ns / 1e9,
         "bag_duration_s": duration_s,
-        "sample_count": len(meas) if settings["source"] == "topics" else len(joints),
-        "input_count": len(inputs),
+        "sample_count": len(streams.meas[1]) if source == "topics" else len(streams.joints[1]),
+        "input_count": len(streams.inputs[1]),
         "samples_accepted": runner.accepted,
         "samples_rejected": sum(runner.rejected.values()),
-        "rejected_by_reason": rejected,
+        "rejected_by_reason": dict(sorted(runner.rejected.items())),
         "restarts": sum(runner.resets.values()),
         "restarts_by_reason": dict(sorted(runner.resets.items())),
         "guaranteed_time_s": gt if math.isfinite(gt) else None,
-        "guarantee": f"exact after {gt:g} s" if math.isfinite(gt) else "none (asymptotic)",
+        "guarantee": f"exact {gt:g} s after each (re)start" if math.isfinite(gt)
+        else "none (asymptotic)",
         "settle_time_s": settle,
         "settle_time_rule": settle_rule,
         "tolerance": float(tolerance),
@@ -818,52 +949,40 @@ def replay(bag_path, params_path, out_dir, *, node_name: str | None = None,
             "absolute error over all states stays below 'tolerance' to the end of the bag; "
             "null if it never does or there is no ground truth"),
         "observer_start_s": None if t_start_ns is None else t_start_ns / 1e9,
-        "truth_topic": truth_topic if "truth" in roles else None,
+        "truth_topic": run.truth_topic if "truth" in run.roles else None,
         "errors": errors,
         "errors_note": truth_note,
-        "update_time_us": {**M.percentiles_us(np.asarray(proc_us) * 1e6),
-                           "definition": "wall time of each Runner.process call that produced "
-                                         "an output (validation + observer update + output "
-                                         "building), every accepted sample of the run"},
+        "update_time_us": {
+            **M.percentiles_us(np.asarray(run.proc_s) * 1e6),
+            "definition": "wall time of each Runner.process call that produced an output "
+                          "(validation + observer update + output building), over every "
+                          "accepted sample of the run"},
         "observer_update_time_us": {
             "p50": p50_obs, "p99": p99_obs,
             "definition": "Runner.update_time_us(): the observer's update() alone, over the "
                           "last 2000 updates (what /diagnostics shows)"},
-        "replay_speed_x_realtime": (duration_s / replay_wall) if replay_wall > 0 else None,
-        "replay_speed_definition": ("bag duration / wall time of the whole replay: opening and "
-                                    "reading the bag, decoding, the runner, serialising and "
-                                    "writing the output bag, closing it (metrics.json and the "
-                                    "plot are not included)"),
-        "timing_s": {
-            "read_decode": wall_read - wall0,
-            "order_events": wall_sort - wall_read,
-            "runner": runner_s,
-            "serialize_write": (wall_loop1 - wall_loop0) - runner_s,
-            "close_output": wall_end - wall_loop1,
-            "replay_total": replay_wall,
-        },
+        "replay_speed_x_realtime": duration_s / wall if wall > 0 else None,
+        "replay_speed_definition": (
+            "bag duration / wall time of the whole replay: opening, reading and decoding the "
+            "bag, the runner, serialising and writing the output bag and closing it "
+            "(excluded: params loading, one-time library set-up such as imports and the rosbags "
+            "type store, the metrics and the plot; timing_s has the parts)"),
+        "timing_s": dict(run.timing),
         "reader": streams.reader,
-        "template_fallbacks": enc.fallbacks,
-        "diagnostics_messages": status_levels,
-        "final_status": {"level": LEVEL_NAMES.get(final_status.level, str(final_status.level)),
-                         "message": final_status.message},
-        "observer_diagnostics": {str(k): (v if isinstance(v, (int, float, str, bool)) else str(v))
-                                 for k, v in obs.diagnostics().items()},
+        "serializer_fallbacks": run.fallbacks,
+        "diagnostics_levels": dict(run.status_levels),
+        "final_status": {"level": LEVEL_NAMES.get(run.final_status.level,
+                                                  str(run.final_status.level)),
+                         "message": run.final_status.message},
+        "observer_diagnostics": {
+            str(k): (v if isinstance(v, (int, float, str, bool)) or v is None else str(v))
+            for k, v in obs.diagnostics().items()},
     }
-    metrics["timing_s"]["metrics"] = time.perf_counter() - m0
-
-    if plot:
-        p0 = time.perf_counter()
-        from .plot import plot_replay
-        t0 = info.start_ns
-        truth_rel = None if truth_x is None else (truth_t - t0) / 1e9
-        plot_replay(out_dir / "replay.png", t=(t_est_ns - t0) / 1e9, estimate=x_est,
-                    state_names=names, truth_t=truth_rel, truth=truth_x, err_t=err_t,
-                    err_norm=err_norm, guaranteed_time=gt, settle_time=settle,
-                    tolerance=tolerance if truth_x is not None else None,
-                    t_start=0.0 if t_start_ns is None else (t_start_ns - t0) / 1e9,
-                    title=f"{obs.TYPE} on {bag_path.name}")
-        metrics["timing_s"]["plot"] = time.perf_counter() - p0
-    (out_dir / "metrics.json").write_text(
-        json.dumps(M.json_safe(metrics), indent=2, allow_nan=False) + "\n")
-    return metrics
+    t0 = info.start_ns
+    plot_data = dict(
+        t=(t_est_ns - t0) / 1e9, estimate=x_est, state_names=names,
+        truth_t=None if truth_x is None else (truth_t - t0) / 1e9, truth=truth_x,
+        err_t=err_t, err_norm=err_norm, guaranteed_time=gt, settle_time=settle,
+        tolerance=tolerance if truth_x is not None else None,
+        t_start=0.0 if t_start_ns is None else (t_start_ns - t0) / 1e9)
+    return metrics, plot_data

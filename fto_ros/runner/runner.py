@@ -174,17 +174,18 @@ class Runner:
         x = np.array(obs.estimate, dtype=float)
         ui = obs.unknown_input
         ui = None if ui is None else np.array(ui, dtype=float)
+        # one sum per vector: a NaN or Inf anywhere makes it non-finite
+        if not math.isfinite(x.sum()) or (ui is not None and not math.isfinite(ui.sum())):
+            return None
         since = t - self._t0
         gt = obs.guaranteed_time
         res = obs.output_residual
         thr = self.settings["convergence.residual_threshold"]
         # without a guarantee (asymptotic observers) only the residual can say it
-        converged = since >= gt if math.isfinite(gt) else (math.isfinite(res) and res <= thr)
-        conv = np.array([since, res if math.isfinite(res) else -1.0, float(converged), gt, obs.health])
-        if not np.all(np.isfinite(x)) or (ui is not None and not np.all(np.isfinite(ui))):
-            return None
-        if not math.isfinite(conv[4]):
-            conv[4] = 0.0
+        converged = since >= gt - 1e-9 if math.isfinite(gt) else (math.isfinite(res) and res <= thr)
+        health = obs.health
+        conv = np.array([since, res if math.isfinite(res) else -1.0, float(converged), gt,
+                         health if math.isfinite(health) else 0.0])
         js = None
         if self._js is not None:
             names, idx = self._js
@@ -291,6 +292,11 @@ class Runner:
             if not math.isfinite(x):
                 return f"{what}_non_finite"
         return None
+
+    def reject(self, reason: str) -> None:
+        """Count a sample the caller refused before it reached the runner (e.g. a
+        JointState without the configured joint, a future stamp)."""
+        self._reject(reason)
 
     def _reject(self, reason: str) -> None:
         self.rejected[reason] += 1

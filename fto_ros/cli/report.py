@@ -1,0 +1,269 @@
+"""``fto-report``: replay the DC-motor bags through every observer and compare them.
+
+Each (bag, params file) pair is replayed with :func:`fto_ros.replay.replay`
+into ``OUT/<bag>__<config>/`` (output bag, ``metrics.json``, ``replay.png``);
+then a side-by-side markdown table is printed and written to
+``OUT/report.md`` with links to the plots.
+
+The pairs are data, not code (:func:`plan`):
+
+- bags: ``BAGS_DIR/dc_motor_*`` (``dc_motor_nominal`` and ``dc_motor_noisy``
+  are required: a missing one is a failed row; the others, e.g.
+  ``dc_motor_sampled``, are used when present);
+- configs: ``CONFIG_DIR/dc_motor_*.yaml`` whose ``observer.type`` is a
+  registered observer (others are skipped with a note);
+- a config ``X_<variant>.yaml`` (e.g. ``dc_motor_single_delay_sampled.yaml``)
+  replaces ``X.yaml`` for the bag ``dc_motor_<variant>`` and is used for no
+  other bag.
+
+Exit code 0 when every replay succeeded, 1 otherwise (the table is printed
+either way, failed rows included), 2 for usage errors.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+PROG = "fto-report"
+SYSTEM = "dc_motor"
+#: bags that must be there; every other BAGS_DIR/dc_motor_* is used when present
+REQUIRED_BAGS = ("dc_motor_nominal", "dc_motor_noisy")
+#: row order: these bags and observers first (in this order), the rest alphabetically
+BAG_ORDER = ("dc_motor_nominal", "dc_motor_noisy", "dc_motor_sampled")
+CONFIG_ORDER = ("dc_motor_single_delay", "dc_motor_luenberger")
+
+
+@dataclass
+class Pair:
+    """One replay of the report."""
+
+    bag: Path
+    config: Path
+    out: Path = field(default=Path())
+    metrics: dict[str, Any] | None = None
+    error: str | None = None
+
+    @property
+    def name(self) -> str:
+        return f"{self.bag.name}__{self.config.stem}"
+
+
+def _ordered(names, preferred) -> list:
+    rank = {n: i for i, n in enumerate(preferred)}
+    return sorted(names, key=lambda n: (rank.get(n, len(rank)), n))
+
+
+def _observer_type(config: Path) -> str | None:
+    """observer.type of a params file, or None if it cannot be read."""
+    from ..runner.settings import load_params_file
+    try:
+        return load_params_file(config).get("observer.type")
+    except Exception:
+        return None
+
+
+def plan(bags_dir: Path, config_dir: Path) -> tuple[list[Pair], list[str]]:
+    """The (bag, config) pairs to replay, and notes on what was skipped and why."""
+    from ..observers import REGISTRY
+    notes: list[str] = []
+    present = {p.name for p in bags_dir.glob(f"{SYSTEM}_*") if p.is_dir() or p.suffix == ".mcap"}
+    bag_names = _ordered(present | set(REQUIRED_BAGS), BAG_ORDER)
+    variants = {b[len(SYSTEM) + 1:] for b in bag_names} | {b[len(SYSTEM) + 1:] for b in BAG_ORDER}
+    configs = {p.stem: p for p in sorted(config_dir.glob(f"{SYSTEM}_*.yaml"))}
+    if not configs:
+        notes.append(f"no {SYSTEM}_*.yaml params files in {config_dir}")
+    # a config 'X_<variant>' is the variant of 'X' when 'X' exists too
+    base = [c for c in configs if not any(c.endswith("_" + v) and c[:-len(v) - 1] in configs
+                                          for v in variants)]
+    usable = []
+    for stem in _ordered(base, CONFIG_ORDER):
+        kind = _observer_type(configs[stem])
+        if kind is not None and kind not in REGISTRY:
+            notes.append(f"skipped {configs[stem]}: observer '{kind}' is not available "
+                         f"(known: {', '.join(sorted(REGISTRY))})")
+            continue
+        usable.append(stem)  # unreadable configs stay: their replay reports the problem
+    pairs = []
+    for bag in bag_names:
+        variant = bag[len(SYSTEM) + 1:]
+        for stem in usable:
+            cfg = configs.get(f"{stem}_{variant}", configs[stem])
+            pairs.append(Pair(bags_dir / bag, cfg))
+    return pairs, notes
+
+
+# ------------------------------------------------------------------------ table
+def _g(v, digits: int = 3) -> str:
+    if v is None:
+        return "n/a"
+    if isinstance(v, float) and not math.isfinite(v):
+        return "n/a"
+    if v == 0:
+        return "0"
+    return f"{v:.{digits}g}"
+
+
+def _state_columns(pairs: list[Pair]) -> list[str]:
+    """One label per state index; names that differ between observers are joined with '/'."""
+    labels: list[list[str]] = []
+    for p in pairs:
+        if p.metrics:
+            for i, name in enumerate(p.metrics["state_names"]):
+                while len(labels) <= i:
+                    labels.append([])
+                if name not in labels[i]:
+                    labels[i].append(name)
+    return ["/".join(names) for names in labels]
+
+
+def table(pairs: list[Pair]) -> str:
+    """The side-by-side markdown table of the replays."""
+    states = _state_columns(pairs)
+    head = (["bag", "observer (params)", "guaranteed time (s)", "measured convergence (s)",
+             "settle (s)"]
+            + [f"max abs err {s}" for s in states] + [f"RMS err {s}" for s in states]
+            + ["rejected", "update p50 (us)", "replay speed (x real time)"])
+    rows = [head, ["---"] * len(head)]
+    for p in pairs:
+        m = p.metrics
+        label = f"{m['observer_type']} ({p.config.name})" if m else p.config.name
+        if m is None:
+            rows.append([p.bag.name, label, f"FAILED: {p.error}"] + [""] * (len(head) - 3))
+            continue
+        errs = (m.get("errors") or {}).get("per_state") or {}
+        per = [errs.get(n) for n in m["state_names"]] + [None] * (len(states) - len(m["state_names"]))
+        if m["errors"] is None:
+            conv = "n/a (no truth)"
+        elif m["convergence_time_s"] is None:
+            conv = f"never (tol {m['tolerance']:g})"
+        else:
+            conv = _g(m["convergence_time_s"], 4)
+        rej = m["samples_rejected"]
+        if rej:
+            rej = f"{rej} (" + ", ".join(f"{k}: {v}" for k, v in m["rejected_by_reason"].items()) + ")"
+        rows.append(
+            [p.bag.name, label,
+             "none" if m["guaranteed_time_s"] is None else _g(m["guaranteed_time_s"], 4),
+             conv, _g(m["settle_time_s"], 4)]
+            + [_g(e["max_abs_after_settle"]) if e else "n/a" for e in per]
+            + [_g(e["rms_after_settle"]) if e else "n/a" for e in per]
+            + [str(rej), _g(m["update_time_us"]["p50"], 3),
+               _g(m["replay_speed_x_realtime"], 3)])
+    return "\n".join("| " + " | ".join(str(c) for c in row) + " |" for row in rows)
+
+
+def markdown(pairs: list[Pair], notes: list[str], out: Path) -> str:
+    """The whole report.md."""
+    lines = ["# fto_ros: DC-motor observer comparison", "",
+             "Every bag replayed offline through every observer with `fto-replay` "
+             "(the same runner code path as the live node).", "", table(pairs), "",
+             "- *guaranteed time*: the observer's guaranteed convergence time after a (re)start "
+             "(none: asymptotic only).",
+             "- *measured convergence*: first time after the observer's first sample from which "
+             "the largest absolute error over all states stays below the tolerance to the end "
+             "of the bag (never: it does not).",
+             "- *max abs err*, *RMS err*: truth - estimate over the samples at least *settle* "
+             "seconds after the observer's (re)start (the guaranteed time + 0.01 s, or 0.11 s "
+             "without a guarantee), in state units.",
+             "- *update p50*: median wall time of one `Runner.process` call (validation, "
+             "observer update, outputs); *replay speed*: bag duration / wall time of the whole "
+             "replay (read, runner, write), on the machine that made this report.", ""]
+    if notes:
+        lines += ["## Notes", ""] + [f"- {n}" for n in notes] + [""]
+    lines += ["## Plots", ""]
+    for p in pairs:
+        if p.metrics and p.metrics.get("plot"):
+            rel = f"{p.name}/{p.metrics['plot']}"
+            lines += [f"### {p.bag.name} / {p.config.name}", "",
+                      f"[{rel}]({rel}) - metrics: [{p.name}/metrics.json]({p.name}/metrics.json)",
+                      "", f"![{p.name}]({rel})", ""]
+        elif p.error:
+            lines += [f"### {p.bag.name} / {p.config.name}", "", f"FAILED: {p.error}", ""]
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------- main
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog=PROG,
+        description="Replay the DC-motor bags through every available observer config and print "
+                    "a side-by-side comparison (also written to OUT/report.md).")
+    p.add_argument("--out", default="out", metavar="DIR",
+                   help="output directory (default: out); each replay goes to "
+                        "DIR/<bag>__<config>/")
+    p.add_argument("--bags-dir", default="bags", metavar="DIR", help="bags directory (default: bags)")
+    p.add_argument("--config-dir", default="config", metavar="DIR",
+                   help="params files directory (default: config)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return _main(args)
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return 130
+
+
+def _main(args) -> int:
+    from ..bag import BagError
+    from ..core.errors import ConfigError
+    from ..replay import ReplayError, replay
+    from ..replay.cli import one_line
+
+    out, bags_dir, config_dir = Path(args.out), Path(args.bags_dir), Path(args.config_dir)
+    for d, what in ((bags_dir, "bags"), (config_dir, "config")):
+        if not d.is_dir():
+            print(f"{PROG}: error: {what} directory {d} does not exist (run from the repository "
+                  f"root or pass --{what.split()[0]}-dir)", file=sys.stderr)
+            return 1
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        print(f"{PROG}: error: cannot create {out}: {err}", file=sys.stderr)
+        return 1
+    pairs, notes = plan(bags_dir, config_dir)
+    for n in notes:
+        print(f"{PROG}: note: {n}", file=sys.stderr)
+    if not pairs:
+        print(f"{PROG}: error: nothing to replay", file=sys.stderr)
+        return 1
+    for p in pairs:
+        p.out = out / p.name
+        if not p.bag.exists():
+            p.error = (f"bag {p.bag} is missing (make it with: fto-simulate {SYSTEM} "
+                       f"--out {p.bag} ...)")
+        else:
+            try:
+                p.metrics = replay(p.bag, p.config, p.out, overwrite=True,
+                                   progress=not args.no_progress)
+            except (ConfigError, BagError, ReplayError, OSError) as err:
+                p.error = one_line(err)
+            except Exception as err:  # one broken pair must not hide the others
+                p.error = f"unexpected {type(err).__name__}: {one_line(err)}"
+        if p.error:
+            print(f"{PROG}: error: {p.bag.name} with {p.config.name}: {p.error}", file=sys.stderr)
+        else:
+            print(f"{PROG}: {p.bag.name} with {p.config.name}: done "
+                  f"({p.metrics['replay_speed_x_realtime']:.1f}x real time)", file=sys.stderr)
+    print(table(pairs))
+    report = out / "report.md"
+    try:
+        report.write_text(markdown(pairs, notes, out) + "\n")
+    except OSError as err:
+        print(f"{PROG}: error: cannot write {report}: {err}", file=sys.stderr)
+        return 1
+    failed = [p for p in pairs if p.error]
+    print(f"\nwrote {report}" + (f"; {len(failed)} of {len(pairs)} replay(s) FAILED" if failed
+                                  else f" ({len(pairs)} replays)"))
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

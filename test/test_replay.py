@@ -1,0 +1,559 @@
+"""The offline replay harness (`fto-replay`) and the comparison report (`fto-report`).
+
+A 2 s, 1 kHz DC-motor bag (config/dc_motor_luenberger.yaml's plant, x(0) = (0.5, -1, 0.2),
+the model's default voltage profile, no noise) is simulated with fto_ros.models and
+written with fto_ros.bag.BagWriter: measured_output, input, joint_states (position = q,
+effort = V), true_state and /clock, all at the sample times.
+
+Error bound after settling (test_errors_after_settling_are_small), from the observer's
+own matrices rather than a tuned number.  The Luenberger error obeys
+    e' = Acl e + L (y - y_foh) + (F(y) - F_foh)(t),     Acl = A - L C,
+because the observer integrates exactly with y and F(y) = (0, -35 sin y, 0) held
+first-order between samples and the input held zero-order like the simulator.  So
+    |e_i(t)| <= kappa(V) e^(-50 t) |e(0)|  +  ||h_i||_1 dy  +  ||g_i||_1 dF
+with h = e^(Acl t) L and g = e^(Acl t) (0, 1, 0)^T (their L1 norms over t >= 0),
+kappa(V) the eigenvector condition number of Acl (slowest pole -50), and the linear
+interpolation errors dy <= h^2/8 max|q''|, dF <= h^2/8 * 35 (max|q''| + max q'^2)
+(h = 1 ms).  At t >= 0.5 s the transient term is 3e-6 (kappa = 2e5, e^-25 = 1.4e-11) and
+the bound is (6e-6, 2.5e-4, 3e-3) for (q, q_dot, I); the replay measures
+(1.2e-6, 4e-5, 4.5e-4), the largest just after the voltage steps.
+"""
+from __future__ import annotations
+
+import importlib
+import json
+import math
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from fto_ros.bag import BagReader, BagWriter
+from fto_ros.models import dc_motor, simulate
+from fto_ros.models.simulate import uniform_grid
+from fto_ros.replay import ReplayError, replay
+from fto_ros.replay import cli as replay_cli
+from fto_ros.replay import metrics as M
+from fto_ros.runner.runner import Runner
+from fto_ros.runner.settings import load_params_file
+
+R = importlib.import_module("fto_ros.replay.replay")  # the module (the package exports the function)
+
+REPO = Path(__file__).resolve().parents[1]
+LUENBERGER = REPO / "config" / "dc_motor_luenberger.yaml"
+NS = "/dc_motor"
+RATE = 1000.0
+DURATION = 2.0
+
+METRIC_FIELDS = {
+    "schema", "bag", "params_file", "node_name", "observer_type", "state_names", "source",
+    "input_topics", "output_bag", "output_topics", "plot", "bag_start_s", "bag_duration_s",
+    "sample_count", "input_count", "samples_accepted", "samples_rejected", "rejected_by_reason",
+    "restarts", "restarts_by_reason", "guaranteed_time_s", "guarantee", "settle_time_s",
+    "settle_time_rule", "tolerance", "convergence_time_s", "convergence_time_definition",
+    "observer_start_s", "truth_topic", "errors", "errors_note", "update_time_us",
+    "observer_update_time_us", "replay_speed_x_realtime", "replay_speed_definition", "timing_s",
+    "reader", "serializer_fallbacks", "diagnostics_levels", "final_status",
+    "observer_diagnostics",
+}
+
+
+# ------------------------------------------------------------------ fixtures
+@pytest.fixture(scope="module")
+def sim():
+    t = uniform_grid(DURATION, RATE)
+    return simulate(dc_motor.make_rhs(), dc_motor.DEFAULT_X0, t, dc_motor.default_voltage,
+                    output=dc_motor.output)
+
+
+def write_bag(path: Path, sim, *, bad: bool = False, truth: bool = True,
+              measured_topic: str = f"{NS}/measured_output") -> Path:
+    """The test bag; ``bad`` adds a NaN and a wrong-length measurement, a repeated stamp
+    and a NaN input."""
+    ns_of = [int(round(t * 1e9)) for t in sim.t]
+    with BagWriter(path) as bag:
+        for k, t_ns in enumerate(ns_of):
+            bag.clock(t_ns)
+            u = sim.u[k]
+            y = sim.y[k]
+            if bad and k == 800:
+                u = [math.nan]
+            bag.float_array(f"{NS}/input", t_ns, u)
+            if bad and k == 500:
+                y = [math.nan]
+            elif bad and k == 600:
+                y = [float(sim.y[k][0]), 0.0]
+            bag.float_array(measured_topic, t_ns, y)
+            if bad and k == 700:
+                bag.float_array(measured_topic, t_ns, sim.y[k])  # same stamp again
+            bag.joint_state(f"{NS}/joint_states", t_ns, t_ns, ["joint1"], position=sim.y[k],
+                            effort=sim.u[k])
+            if truth:
+                bag.float_array(f"{NS}/true_state", t_ns, sim.x[k])
+    return path
+
+
+@pytest.fixture(scope="module")
+def bag(sim, tmp_path_factory):
+    return write_bag(tmp_path_factory.mktemp("bags") / "dc_motor_test", sim)
+
+
+@pytest.fixture(scope="module")
+def bad_bag(sim, tmp_path_factory):
+    return write_bag(tmp_path_factory.mktemp("bags") / "dc_motor_bad", sim, bad=True)
+
+
+@pytest.fixture(scope="module")
+def run(bag, tmp_path_factory):
+    out = tmp_path_factory.mktemp("replay") / "out"
+    metrics = replay(bag, LUENBERGER, out, progress=False)
+    return out, metrics
+
+
+def read_topic(path: Path, topic: str):
+    with BagReader(path) as b:
+        return [(t, msg) for _, t, msg in b.messages([topic])]
+
+
+# ------------------------------------------------------------------ outputs
+def test_output_bag_has_one_estimate_per_accepted_sample(run, bag, sim):
+    out, m = run
+    est = read_topic(out, "/observer_node/state_estimate")
+    assert len(est) == m["samples_accepted"] == len(sim.t)
+    # log time = sample time = the measurement's log time
+    meas_times = [t for t, _ in read_topic(bag, f"{NS}/measured_output")]
+    assert [t for t, _ in est] == meas_times
+    assert est[0][1].layout.dim[0].label == "q,q_dot,current"
+    with BagReader(out) as b:
+        topics = b.topics
+    n = len(sim.t)
+    assert topics["/observer_node/convergence"].count == n
+    assert topics["/observer_node/estimated_joint_states"].count == n
+    assert "/observer_node/unknown_input_estimate" not in topics  # Luenberger has none
+    assert topics[f"{NS}/true_state"].count == n
+    # /diagnostics once per second of bag time (t = 1 s, 2 s) plus the final one
+    assert topics["/diagnostics"].count == 3
+    assert m["output_topics"]["/observer_node/state_estimate"] == n
+
+
+def test_outputs_match_the_runner_driven_directly(run, sim):
+    """The replay gives exactly what the runner gives when driven sample by sample."""
+    out, _ = run
+    runner = Runner(load_params_file(LUENBERGER))
+    ref = []
+    for k, t in enumerate(sim.t):
+        t_s = int(round(t * 1e9)) / 1e9
+        assert runner.set_input(t_s, sim.u[k].tolist()) is None
+        ref.append(runner.process(t_s, sim.y[k].tolist()).estimate)
+    est = np.array([msg.data for _, msg in read_topic(out, "/observer_node/state_estimate")])
+    np.testing.assert_array_equal(est, np.array(ref))
+
+
+def test_joint_states_and_truth_copied(run, sim):
+    out, _ = run
+    js = read_topic(out, "/observer_node/estimated_joint_states")
+    est = read_topic(out, "/observer_node/state_estimate")
+    t, msg = js[1000]
+    assert (msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec) == t == est[1000][0]
+    assert list(msg.name) == ["joint1"]
+    np.testing.assert_array_equal([msg.position[0], msg.velocity[0], msg.effort[0]],
+                                  est[1000][1].data)
+    truth = np.array([m.data for _, m in read_topic(out, f"{NS}/true_state")])
+    np.testing.assert_array_equal(truth, sim.x)
+    conv = np.array([m.data for _, m in read_topic(out, "/observer_node/convergence")])
+    assert np.all(np.isfinite(conv))
+    assert np.all(conv[:, 3] == -1.0)  # no guaranteed time, published as -1 like the node
+    diag = read_topic(out, "/diagnostics")
+    st = diag[-1][1].status[0]
+    assert st.name == "observer_node: observer"
+    values = {kv.key: kv.value for kv in st.values}
+    assert values["samples accepted"] == str(len(sim.t))
+    assert values["messages received: measured_output"] == str(len(sim.t))
+
+
+def test_metrics_json_fields_and_values(run, sim):
+    out, m = run
+    on_disk = json.loads((out / "metrics.json").read_text())
+    assert set(on_disk) == METRIC_FIELDS
+    assert on_disk["samples_accepted"] == m["samples_accepted"]
+    assert m["observer_type"] == "luenberger"
+    assert m["state_names"] == ["q", "q_dot", "current"]
+    assert m["sample_count"] == m["input_count"] == len(sim.t)
+    assert m["samples_accepted"] == len(sim.t) and m["samples_rejected"] == 0
+    assert m["rejected_by_reason"] == {} and m["restarts"] == 0
+    assert m["bag_duration_s"] == pytest.approx(DURATION)
+    # no guarantee: the settle time is the fixed 0.11 s, and says so
+    assert on_disk["guaranteed_time_s"] is None
+    assert m["settle_time_s"] == pytest.approx(0.11) and "fixed" in m["settle_time_rule"]
+    assert m["tolerance"] == 1e-2
+    # poles -50..-70: the error falls below 1e-2 well before 1 s (measured 0.289 s)
+    assert 0.1 < m["convergence_time_s"] < 0.5
+    err = m["errors"]
+    assert set(err["per_state"]) == {"q", "q_dot", "current"}
+    for s in err["per_state"].values():
+        assert set(s) == {"rms", "max_abs", "rms_after_settle", "max_abs_after_settle"}
+        assert 0 <= s["rms_after_settle"] <= s["max_abs_after_settle"] <= s["max_abs"]
+    assert err["matched_samples"] == len(sim.t) and err["unmatched_samples"] == 0
+    u = m["update_time_us"]
+    assert u["count"] == len(sim.t) and 0 < u["p50"] <= u["p99"]
+    assert m["replay_speed_x_realtime"] > 0
+    t = m["timing_s"]
+    assert t["replay_total"] >= t["runner"] > 0
+    assert m["replay_speed_x_realtime"] == pytest.approx(m["bag_duration_s"] / t["replay_total"])
+    assert m["reader"] == "MCAP fast path" and m["serializer_fallbacks"] == []
+    assert m["final_status"]["message"].startswith("converged")
+    assert "closed-loop poles" in m["observer_diagnostics"]
+
+
+def test_plot_written(run):
+    out, m = run
+    png = out / "replay.png"
+    assert m["plot"] == "replay.png"
+    assert png.stat().st_size > 10_000
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def _error_bound(runner: Runner, sim, after: float) -> np.ndarray:
+    """The bound of the module docstring, per state."""
+    obs = runner.observer
+    acl = obs.A - obs.L @ obs.C
+    lam, V = np.linalg.eig(acl)
+    t = np.linspace(0.0, 1.0, 200_001)  # every mode is below e^-50 of its start by t = 1 s
+    dt = t[1] - t[0]
+    modes = np.exp(np.outer(t, lam))                           # (N, 3)
+
+    def l1(b):
+        c = np.linalg.solve(V, b)
+        resp = np.real((modes * c) @ V.T)                      # e^(Acl t) b on the grid
+        return np.sum(np.abs(resp), axis=0) * dt * 1.05         # Riemann sum + 5 %
+
+    h1 = l1(obs.L[:, 0])
+    g1 = l1(np.array([0.0, 1.0, 0.0]))
+    h = 1.0 / RATE
+    qdd = np.abs(np.diff(sim.x[:, 1])) / np.diff(sim.t)
+    qd2 = sim.x[:, 1] ** 2
+    dy = h * h / 8 * qdd.max()
+    dF = h * h / 8 * 35.0 * (qdd.max() + qd2.max())
+    e0 = np.linalg.norm(np.asarray(dc_motor.DEFAULT_X0))       # the observer starts at 0
+    transient = np.linalg.cond(V) * math.exp(np.max(lam.real) * after) * e0
+    return transient + h1 * dy + g1 * dF
+
+
+def test_errors_after_settling_are_small(bag, sim, tmp_path):
+    after = 0.5
+    m = replay(bag, LUENBERGER, tmp_path / "out", progress=False, after=after, plot=False)
+    assert m["settle_time_s"] == after and "given" in m["settle_time_rule"]
+    bound = _error_bound(Runner(load_params_file(LUENBERGER)), sim, after)
+    assert np.all(bound < [1e-4, 1e-2, 5e-2])  # a bound worth checking
+    per = m["errors"]["per_state"]
+    measured = np.array([per[s]["max_abs_after_settle"] for s in ("q", "q_dot", "current")])
+    assert np.all(measured <= bound), (measured, bound)
+    # and far below the initial error (0.5, 1, 0.2)
+    assert np.all(measured < [1e-4, 1e-3, 1e-2])
+
+
+def test_deterministic(bag, run, tmp_path):
+    out1, m1 = run
+    m2 = replay(bag, LUENBERGER, tmp_path / "again", progress=False, plot=False)
+    e1 = np.array([m.data for _, m in read_topic(out1, "/observer_node/state_estimate")])
+    e2 = np.array([m.data for _, m in read_topic(tmp_path / "again",
+                                                  "/observer_node/state_estimate")])
+    np.testing.assert_array_equal(e1, e2)
+    assert m1["errors"] == m2["errors"]
+    assert m1["convergence_time_s"] == m2["convergence_time_s"]
+
+
+def test_bad_samples_are_rejected_and_counted(bad_bag, sim, tmp_path):
+    out = tmp_path / "out"
+    m = replay(bad_bag, LUENBERGER, out, progress=False, plot=False)
+    assert m["rejected_by_reason"] == {"input_non_finite": 1, "measurement_non_finite": 1,
+                                       "measurement_wrong_length": 1, "repeated_stamp": 1}
+    assert m["samples_rejected"] == 4
+    n_meas = len(sim.t) + 1  # one extra message with a repeated stamp
+    assert m["sample_count"] == n_meas
+    assert m["samples_accepted"] == n_meas - 3
+    est = read_topic(out, "/observer_node/state_estimate")
+    assert len(est) == m["samples_accepted"]
+    times = [t for t, _ in est]
+    assert len(set(times)) == len(times)
+    assert 500_000_000 not in times and 600_000_000 not in times
+    for topic in ("/observer_node/state_estimate", "/observer_node/convergence"):
+        data = np.array([msg.data for _, msg in read_topic(out, topic)])
+        assert np.all(np.isfinite(data)), topic
+    js = read_topic(out, "/observer_node/estimated_joint_states")
+    assert all(np.all(np.isfinite(np.r_[m_.position, m_.velocity, m_.effort])) for _, m_ in js)
+    diag = read_topic(out, "/diagnostics")
+    values = {kv.key: kv.value for kv in diag[0][1].status[0].values}
+    assert values["rejected: measurement_non_finite"] == "1"
+    assert diag[0][1].status[0].level == 1  # WARN in the second with rejections
+    # the estimate still converges: the bad samples did not corrupt it
+    assert m["errors"]["per_state"]["current"]["max_abs"] > 1  # the start-up transient
+    assert m["convergence_time_s"] is not None and m["convergence_time_s"] < 0.5
+
+
+def test_joint_states_source_gives_the_same_estimates(bag, run, tmp_path):
+    doc = yaml.safe_load(LUENBERGER.read_text())
+    p = doc["observer_node"]["ros__parameters"]
+    p["source"] = "joint_states"
+    p["joint_states"].update(input_joints=["joint1"], input_field="effort")
+    params = tmp_path / "js.yaml"
+    params.write_text(yaml.safe_dump(doc))
+    m = replay(bag, params, tmp_path / "out", progress=False, plot=False)
+    assert m["source"] == "joint_states" and m["samples_accepted"] == run[1]["samples_accepted"]
+    e1 = np.array([x.data for _, x in read_topic(run[0], "/observer_node/state_estimate")])
+    e2 = np.array([x.data for _, x in read_topic(tmp_path / "out",
+                                                  "/observer_node/state_estimate")])
+    np.testing.assert_array_equal(e1, e2)
+
+
+def test_node_name_sets_the_output_namespace(bag, tmp_path):
+    m = replay(bag, LUENBERGER, tmp_path / "out", node_name="/robot/motor_observer",
+               progress=False, plot=False)
+    assert m["node_name"] == "/robot/motor_observer"
+    with BagReader(tmp_path / "out") as b:
+        assert "/robot/motor_observer/state_estimate" in b.topics
+
+
+def test_no_truth_gives_metrics_without_errors(sim, tmp_path):
+    bag = write_bag(tmp_path / "notruth", sim, truth=False)
+    m = replay(bag, LUENBERGER, tmp_path / "out", progress=False)
+    assert m["errors"] is None and m["convergence_time_s"] is None
+    assert "no ground truth" in m["errors_note"]
+    assert m["samples_accepted"] == len(sim.t)
+    assert (tmp_path / "out" / "replay.png").stat().st_size > 0
+
+
+# ------------------------------------------------------------------ fast paths
+def test_fast_reader_matches_bagreader(bad_bag):
+    topics = [f"{NS}/measured_output", f"{NS}/input", f"{NS}/true_state"]
+    fast = R._read_fast(Path(bad_bag), topics)
+    with BagReader(bad_bag) as b:
+        ts = b._typestore
+        for topic in topics:
+            ref = [(t, msg) for _, t, msg in b.messages([topic])]
+            t_fast, payloads = fast[topic]
+            assert t_fast.tolist() == [t for t, _ in ref]
+            vals = R.decode_float_arrays(payloads, ts)
+            for v, (_, msg) in zip(vals, ref):
+                np.testing.assert_array_equal(np.asarray(v, dtype=float), msg.data)
+
+
+def test_bagreader_fallback_gives_the_same_replay(bad_bag, tmp_path, monkeypatch):
+    """Bags the fast path does not take (SQLite3, file compression ...) go through BagReader."""
+    fast = replay(bad_bag, LUENBERGER, tmp_path / "fast", progress=False, plot=False)
+
+    def not_fast(*args):
+        raise R._NotFast("forced by the test")
+
+    monkeypatch.setattr(R, "_read_fast", not_fast)
+    slow = replay(bad_bag, LUENBERGER, tmp_path / "slow", progress=False, plot=False)
+    assert slow["reader"] == "rosbags BagReader (forced by the test)"
+    assert fast["reader"] == "MCAP fast path"
+    for key in ("samples_accepted", "rejected_by_reason", "errors", "convergence_time_s",
+                "output_topics"):
+        assert slow[key] == fast[key], key
+    for topic in ("/observer_node/state_estimate", f"{NS}/true_state"):
+        a = [(t, list(m.data)) for t, m in read_topic(tmp_path / "fast", topic)]
+        b = [(t, list(m.data)) for t, m in read_topic(tmp_path / "slow", topic)]
+        assert a == b, topic
+
+
+def test_all_samples_rejected(sim, tmp_path):
+    path = tmp_path / "allbad"
+    with BagWriter(path) as bag:
+        for k in range(50):
+            bag.float_array(f"{NS}/input", k * 10**6, [1.0])
+            bag.float_array(f"{NS}/measured_output", k * 10**6, [1.0, 2.0])
+            bag.float_array(f"{NS}/true_state", k * 10**6, [0.0, 0.0, 0.0])
+    m = replay(path, LUENBERGER, tmp_path / "out", progress=False)
+    assert m["samples_accepted"] == 0
+    assert m["rejected_by_reason"] == {"measurement_wrong_length": 50}
+    assert m["errors"] is None and "no accepted samples" in m["errors_note"]
+    assert m["final_status"]["level"] == "WARN"
+    assert (tmp_path / "out" / "replay.png").stat().st_size > 0
+
+
+def test_float_array_codec_matches_rosbags():
+    from fto_ros.bag.reader import jazzy_typestore
+    ts = jazzy_typestore()
+    enc = R._Encoders(ts)
+    for n in range(5):
+        for label in (None, "a", "q,q_dot,current"):
+            x = np.linspace(-1.0, 2.0, n)
+            raw = enc.float_array(n, label)(x)
+            assert raw == enc._rosbags_f64(x, label)
+            assert R.decode_float_arrays([raw], ts) == [x.tolist()]
+            assert R.decode_float_arrays([raw, raw], ts) == [x.tolist()] * 2
+    assert enc.fallbacks == []
+    js = enc.joint_state(["a", "joint_12"], (2, 0, 2))
+    assert js(5, 7, [1.0, 2.0], [], [3.0, 4.0]) == enc._rosbags_js(
+        ["a", "joint_12"], 5, 7, [1.0, 2.0], [], [3.0, 4.0])
+    assert enc.fallbacks == []
+
+
+# ------------------------------------------------------------------ metrics
+def test_match_truth_exact_interpolated_and_outside():
+    t_truth = np.array([10, 20, 30], dtype=np.int64)
+    x_truth = np.array([[0.0], [1.0], [3.0]])
+    mask, x = M.match_truth(np.array([5, 10, 15, 30, 31]), t_truth, x_truth)
+    assert mask.tolist() == [False, True, True, True, False]
+    assert x[1, 0] == 0.0 and x[2, 0] == 0.5 and x[3, 0] == 3.0
+    assert np.isnan(x[0, 0]) and np.isnan(x[4, 0])
+
+
+def test_convergence_time_definition():
+    t = np.array([0.0, 0.1, 0.2, 0.3, 0.4])
+    assert M.convergence_time(t, np.array([1, 0.001, 1, 0.001, 0.001]), 0.01) == 0.3
+    assert M.convergence_time(t, np.full(5, 0.001), 0.01) == 0.0
+    assert M.convergence_time(t, np.array([1, 0, 0, 0, 1.0]), 0.01) is None
+    assert M.convergence_time(t, np.array([1, 0, 0, np.nan, 0]), 0.01) == 0.4
+
+
+# ------------------------------------------------------------------ CLI
+def _cli(capsys, *argv):
+    rc = replay_cli.main(list(map(str, argv)))
+    cap = capsys.readouterr()
+    return rc, cap.out, cap.err
+
+
+def _one_error_line(err: str) -> str:
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("fto-replay: error: ")
+    assert "Traceback" not in err
+    return lines[0]
+
+
+def test_cli_success(bag, tmp_path, capsys):
+    rc, out, err = _cli(capsys, bag, "--params", LUENBERGER, "--out", tmp_path / "o",
+                        "--no-progress", "--tolerance", "0.05", "--after", "0.3")
+    assert rc == 0, err
+    assert "luenberger" in out and "real time" in out
+    m = json.loads((tmp_path / "o" / "metrics.json").read_text())
+    assert m["tolerance"] == 0.05 and m["settle_time_s"] == 0.3
+
+
+def test_cli_missing_bag(tmp_path, capsys):
+    rc, _, err = _cli(capsys, tmp_path / "nope", "--params", LUENBERGER, "--out", tmp_path / "o")
+    assert rc == 1
+    assert "nope" in _one_error_line(err)
+    assert not (tmp_path / "o").exists()
+
+
+def test_cli_not_a_bag(tmp_path, capsys):
+    (tmp_path / "junk").mkdir()
+    (tmp_path / "junk" / "metadata.yaml").write_text("garbage: [")
+    rc, _, err = _cli(capsys, tmp_path / "junk", "--params", LUENBERGER, "--out", tmp_path / "o")
+    assert rc == 1
+    _one_error_line(err)
+
+
+def test_cli_missing_params(bag, tmp_path, capsys):
+    rc, _, err = _cli(capsys, bag, "--params", tmp_path / "none.yaml", "--out", tmp_path / "o")
+    assert rc == 1
+    assert "none.yaml" in _one_error_line(err)
+
+
+def test_cli_unknown_parameter(bag, tmp_path, capsys):
+    doc = yaml.safe_load(LUENBERGER.read_text())
+    doc["observer_node"]["ros__parameters"]["luenberger"]["polse"] = [-1.0, -2.0, -3.0]
+    params = tmp_path / "typo.yaml"
+    params.write_text(yaml.safe_dump(doc))
+    rc, _, err = _cli(capsys, bag, "--params", params, "--out", tmp_path / "o")
+    assert rc == 1
+    line = _one_error_line(err)
+    assert "luenberger.polse" in line and "unknown parameter" in line
+
+
+def test_cli_existing_out_needs_overwrite(bag, tmp_path, capsys):
+    (tmp_path / "o").mkdir()
+    rc, _, err = _cli(capsys, bag, "--params", LUENBERGER, "--out", tmp_path / "o")
+    assert rc == 1
+    assert "exists" in _one_error_line(err) and "--overwrite" in err
+    rc, _, err = _cli(capsys, bag, "--params", LUENBERGER, "--out", tmp_path / "o",
+                      "--overwrite", "--no-progress")
+    assert rc == 0, err
+
+
+def test_cli_bag_without_the_measured_topic(sim, tmp_path, capsys):
+    bag = write_bag(tmp_path / "other", sim, measured_topic="/elsewhere/y")
+    rc, _, err = _cli(capsys, bag, "--params", LUENBERGER, "--out", tmp_path / "o")
+    assert rc == 1
+    line = _one_error_line(err)
+    assert "/dc_motor/measured_output" in line and "/elsewhere/y" in line
+
+
+def test_cli_usage_error(capsys):
+    with pytest.raises(SystemExit) as exc:
+        replay_cli.main(["only-a-bag"])
+    assert exc.value.code == 2
+    with pytest.raises(SystemExit) as exc:
+        replay_cli.main(["b", "--params", "p", "--out", "o", "--tolerance", "-1"])
+    assert exc.value.code == 2
+
+
+def test_library_argument_errors(bag, tmp_path):
+    with pytest.raises(ReplayError):
+        replay(bag, LUENBERGER, tmp_path / "o", tolerance=0)
+    with pytest.raises(ReplayError):
+        replay(bag, LUENBERGER, tmp_path / "o", after=-1.0)
+
+
+def test_console_script_as_subprocess(bag, tmp_path):
+    """`python -m fto_ros.replay.cli` exits 1 with one line, never a traceback."""
+    proc = subprocess.run([sys.executable, "-m", "fto_ros.replay.cli", str(tmp_path / "missing"),
+                           "--params", str(LUENBERGER), "--out", str(tmp_path / "o")],
+                          capture_output=True, text=True, cwd=REPO, timeout=120)
+    assert proc.returncode == 1
+    assert proc.stderr.startswith("fto-replay: error: ") and "Traceback" not in proc.stderr
+
+
+# ------------------------------------------------------------------ fto-report
+def test_report_plan_pairs_variants(tmp_path):
+    from fto_ros.cli import report
+    bags, cfg = tmp_path / "bags", tmp_path / "config"
+    for b in ("dc_motor_nominal", "dc_motor_noisy", "dc_motor_sampled"):
+        (bags / b).mkdir(parents=True)
+    cfg.mkdir()
+    for c in ("dc_motor_luenberger", "dc_motor_single_delay", "dc_motor_single_delay_sampled"):
+        shutil.copy(LUENBERGER, cfg / f"{c}.yaml")
+    doc = yaml.safe_load(LUENBERGER.read_text())
+    doc["observer_node"]["ros__parameters"]["observer"]["type"] = "not_an_observer_yet"
+    (cfg / "dc_motor_future.yaml").write_text(yaml.safe_dump(doc))
+    pairs, notes = report.plan(bags, cfg)
+    got = [(p.bag.name, p.config.name) for p in pairs]
+    assert got == [
+        ("dc_motor_nominal", "dc_motor_single_delay.yaml"),
+        ("dc_motor_nominal", "dc_motor_luenberger.yaml"),
+        ("dc_motor_noisy", "dc_motor_single_delay.yaml"),
+        ("dc_motor_noisy", "dc_motor_luenberger.yaml"),
+        ("dc_motor_sampled", "dc_motor_single_delay_sampled.yaml"),
+        ("dc_motor_sampled", "dc_motor_luenberger.yaml"),
+    ]
+    assert any("dc_motor_future.yaml" in n and "not_an_observer_yet" in n for n in notes)
+
+
+def test_report_runs_and_fails_on_a_missing_bag(bag, tmp_path, capsys):
+    from fto_ros.cli import report
+    bags, cfg, out = tmp_path / "bags", tmp_path / "config", tmp_path / "out"
+    bags.mkdir()
+    cfg.mkdir()
+    shutil.copytree(bag, bags / "dc_motor_nominal")  # dc_motor_noisy is missing
+    shutil.copy(LUENBERGER, cfg / "dc_motor_luenberger.yaml")
+    rc = report.main(["--out", str(out), "--bags-dir", str(bags), "--config-dir", str(cfg),
+                      "--no-progress"])
+    cap = capsys.readouterr()
+    assert rc == 1
+    assert "| dc_motor_nominal | luenberger (dc_motor_luenberger.yaml) | none |" in cap.out
+    assert "dc_motor_noisy" in cap.out and "FAILED" in cap.out
+    md = (out / "report.md").read_text()
+    assert "dc_motor_nominal__dc_motor_luenberger/replay.png" in md
+    assert (out / "dc_motor_nominal__dc_motor_luenberger" / "metrics.json").is_file()
+    # with both bags present it succeeds
+    shutil.copytree(bag, bags / "dc_motor_noisy")
+    assert report.main(["--out", str(out), "--bags-dir", str(bags), "--config-dir", str(cfg),
+                        "--no-progress"]) == 0
