@@ -666,6 +666,7 @@ def _run(runner: Runner, bag_path: Path, out_dir: Path, fqn: str, overwrite: boo
     perf = time.perf_counter
     inf = math.inf
     runner_s = 0.0
+    Path(out_dir).parent.mkdir(parents=True, exist_ok=True)   # --out a/b/c: make a/b
     wall_loop0 = time.perf_counter()
     with BagWriter(out_dir, overwrite=overwrite, custom_data=custom) as bag:
         topic_est, topic_conv = f"{fqn}/state_estimate", f"{fqn}/convergence"
