@@ -1,6 +1,6 @@
 """The offline replay harness (`fto-replay`) and the comparison report (`fto-report`).
 
-A 2 s, 1 kHz DC-motor bag (config/dc_motor_luenberger.yaml's plant, x(0) = (0.5, -1, 0.2),
+A 2 s, 1 kHz DC-motor bag (config/dc_motor_luenberger_poles.yaml's plant, x(0) = (0.5, -1, 0.2),
 the model's default voltage profile, no noise) is simulated with fto_ros.models and
 written with fto_ros.bag.BagWriter: measured_output, input, joint_states (position = q,
 effort = V), true_state and /clock, all at the sample times.
@@ -44,7 +44,7 @@ from fto_ros.runner.settings import load_params_file
 R = importlib.import_module("fto_ros.replay.replay")  # the module (the package exports the function)
 
 REPO = Path(__file__).resolve().parents[1]
-LUENBERGER = REPO / "config" / "dc_motor_luenberger.yaml"
+LUENBERGER = REPO / "config" / "dc_motor_luenberger_poles.yaml"  # poles -50..-70: the bounds below
 NS = "/dc_motor"
 RATE = 1000.0
 DURATION = 2.0

@@ -67,6 +67,8 @@ class ExactStepper:
         key = round(h * 1e9)
         M = self._cache.get(key)
         if M is None:
+            if key <= 0:
+                raise ValueError(f"step must be at least 1 ns, got {h!r} s")
             self.misses += 1
             Phi, G0, G1 = foh_matrices(self.A, self.B, key * 1e-9)
             M = np.hstack([Phi, G0, G1])

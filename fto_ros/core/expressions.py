@@ -9,6 +9,7 @@ microseconds per call, no numpy allocation).
 """
 from __future__ import annotations
 
+import ast
 from typing import Callable, Sequence
 
 import sympy
@@ -33,10 +34,39 @@ def symbols(prefix: str, count: int) -> list[sympy.Symbol]:
     return [sympy.Symbol(f"{prefix}{i}", real=True) for i in range(count)]
 
 
+#: the only Python syntax a model expression may use: arithmetic, names, numbers, calls
+_NODES = (ast.Expression, ast.BinOp, ast.UnaryOp, ast.Call, ast.Name, ast.Load, ast.Constant,
+          ast.Add, ast.Sub, ast.Mult, ast.Div, ast.Pow, ast.BitXor, ast.USub, ast.UAdd, ast.Mod,
+          # for Piecewise((expr, condition), ...): tuples and comparisons
+          ast.Tuple, ast.Compare, ast.Lt, ast.Gt, ast.LtE, ast.GtE)
+
+
+def _check_syntax(text: str, parameter: str) -> None:
+    """Refuse anything but arithmetic on names and numbers, BEFORE sympy evaluates it.
+
+    sympy's parser runs the text as Python: attribute access, subscripts,
+    lambdas, comparisons or boolean operators could reach the interpreter or be
+    silently mis-read, so they are refused here.
+    """
+    try:
+        tree = ast.parse(text, mode="eval")
+    except SyntaxError as exc:
+        raise ConfigError(parameter, f"cannot parse {text!r}: {exc.msg}") from None
+    for node in ast.walk(tree):
+        if not isinstance(node, _NODES):
+            raise ConfigError(parameter, f"{text!r}: '{type(node).__name__}' is not allowed in a "
+                              "model expression (arithmetic, numbers, names and function calls only)")
+        if isinstance(node, ast.Constant) and not isinstance(node.value, (int, float)):
+            raise ConfigError(parameter, f"{text!r}: only numeric constants are allowed")
+        if isinstance(node, ast.Call) and (not isinstance(node.func, ast.Name) or node.keywords):
+            raise ConfigError(parameter, f"{text!r}: only plain calls like sin(y0) are allowed")
+
+
 def parse(text: str, allowed: Sequence[sympy.Symbol], parameter: str) -> sympy.Expr:
     """Parse ``text`` as an expression in ``allowed`` symbols, or raise ConfigError."""
     if not isinstance(text, str) or not text.strip():
         raise ConfigError(parameter, "empty expression")
+    _check_syntax(text.strip(), parameter)
     local = {s.name: s for s in allowed}
     local.update(FUNCTIONS)
     local.update({"pi": sympy.pi, "E": sympy.E})

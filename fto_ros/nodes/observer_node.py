@@ -22,12 +22,19 @@ convergence time is ``-1.0`` when the observer gives no guarantee
 from __future__ import annotations
 
 import array
+import gc
 import math
+import os
 import sys
 import time
+from collections import deque
 from typing import Any
 
-import numpy as np
+# One BLAS thread: the updates are tiny matrix products, and OpenBLAS's worker threads
+# spin-wait, which cost a whole core at 1 kHz on a 2-core machine (set it before numpy).
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
 import yaml
 
 import rclpy
@@ -35,6 +42,8 @@ import rclpy.logging
 import rclpy.utilities
 from rclpy.clock import Clock, ClockType, JumpThreshold
 from rclpy.duration import Duration
+from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
+from rclpy.exceptions import InvalidHandle
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -42,6 +51,7 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityP
 from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rosgraph_msgs.msg import Clock as RosClock
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
 from sensor_msgs.msg import JointState
@@ -144,42 +154,52 @@ class ObserverNode(Node):
         self._win_received = 0
         self._apply_settings()
 
-        # publishers: reliable, keep last 10
+        # publishers: reliable, keep last 10.  No QoS event handlers on our high-rate
+        # entities: each one is rebuilt into the executor's wait set on every message
+        # (~20 % of the node's CPU at 1 kHz), and an incompatible-QoS peer is still
+        # reported by the peer's own default handler.
         out_qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.VOLATILE, history=HistoryPolicy.KEEP_LAST)
-        self._pub_est = self.create_publisher(Float64MultiArray, "state_estimate", out_qos)
+        no_events = PublisherEventCallbacks(use_default_callbacks=False)
+
+        def publisher(mtype, topic):
+            return self.create_publisher(mtype, topic, out_qos, event_callbacks=no_events)
+        self._pub_est = publisher(Float64MultiArray, "state_estimate")
         self._est_msg = self._array_msg(obs.state_names, obs.n_states)
-        self._pub_conv = self.create_publisher(Float64MultiArray, "convergence", out_qos)
+        self._pub_conv = publisher(Float64MultiArray, "convergence")
         self._conv_msg = self._array_msg(CONVERGENCE_FIELDS, len(CONVERGENCE_FIELDS))
         self._pub_ui = None
         if type(obs).unknown_input is not Observer.unknown_input:  # the class identifies one
-            self._pub_ui = self.create_publisher(Float64MultiArray, "unknown_input_estimate", out_qos)
+            self._pub_ui = publisher(Float64MultiArray, "unknown_input_estimate")
         self._ui_msg = Float64MultiArray()
         self._pub_js = None
         self._js_msg = JointState()
         if runner.settings["estimated_joint_states.joint_names"]:
-            self._pub_js = self.create_publisher(JointState, "estimated_joint_states", out_qos)
-        self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", out_qos)
+            self._pub_js = publisher(JointState, "estimated_joint_states")
+        self._pub_diag = publisher(DiagnosticArray, "/diagnostics")
 
         # subscriptions: sensor-data QoS (best effort, keep last qos.depth, volatile), overridable
         in_qos = QoSProfile(depth=runner.settings["qos.depth"], history=HistoryPolicy.KEEP_LAST,
                             reliability=ReliabilityPolicy.BEST_EFFORT,
                             durability=DurabilityPolicy.VOLATILE)
-        overrides = QoSOverridingOptions.with_default_policies()
         s = runner.settings
+
+        def subscription(mtype, topic, callback):
+            return self.create_subscription(
+                mtype, topic, callback, in_qos,
+                qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+                event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
         self._subs = []
+        self._setup_sim_clock()   # before the data subscriptions: first in an executor round
         if s["source"] == "topics":
-            self._subs.append(self.create_subscription(
-                Float64MultiArray, s["topics.measured_output"], self._on_measured_output, in_qos,
-                qos_overriding_options=overrides))
+            # input first: when u_k and y_k wait in the same executor round, u_k must be
+            # stored before y_k is processed (u given at t holds from t on)
             if obs.n_inputs > 0:
-                self._subs.append(self.create_subscription(
-                    Float64MultiArray, s["topics.input"], self._on_input, in_qos,
-                    qos_overriding_options=overrides))
+                self._subs.append(subscription(Float64MultiArray, s["topics.input"], self._on_input))
+            self._subs.append(subscription(Float64MultiArray, s["topics.measured_output"],
+                                           self._on_measured_output))
         else:
-            self._subs.append(self.create_subscription(
-                JointState, s["topics.joint_states"], self._on_joint_states, in_qos,
-                qos_overriding_options=overrides))
+            self._subs.append(subscription(JointState, s["topics.joint_states"], self._on_joint_states))
 
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_service(SetBool, "~/enable", self._on_enable)
@@ -343,20 +363,86 @@ class ObserverNode(Node):
             self._last_reject_log = mono
             self._rejected_since_log = 0
 
+    def _setup_sim_clock(self) -> None:
+        """Under sim time, feed the node clock from a /clock subscription that keeps history.
+
+        A Float64MultiArray is stamped with the node clock *at its receipt by DDS*
+        (``received_timestamp`` of its message info), not when the executor gets to
+        it: with wall time that is the receipt time itself, with sim time the last
+        /clock received before it.  rclpy's own /clock subscription keeps only the
+        latest message, so a node lagging a 1 kHz bag would stamp a backlog of samples
+        with one (later) time; this subscription replaces it (same callback, deeper
+        queue, drained before every stamp).  It also tells 'ROS time 0 = no /clock yet'
+        from a bag that starts at t = 0.
+        """
+        self._clock_hist: deque[tuple[int, int]] = deque(maxlen=4096)  # (received ns, clock ns)
+        self._clock_seen = not self._clock.ros_time_is_active
+        self._clock_sub = None
+        self._time_source_cb = None
+        if not self._clock.ros_time_is_active:
+            return
+        ts = getattr(self, "_time_source", None)
+        old = getattr(ts, "_clock_sub", None)
+        qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT,
+                         history=HistoryPolicy.KEEP_LAST)
+        if old is not None and callable(getattr(ts, "clock_callback", None)):
+            self.destroy_subscription(old)
+            self._time_source_cb = ts.clock_callback
+            self._clock_sub = ts._clock_sub = self.create_subscription(
+                RosClock, "/clock", self._on_clock, qos)
+        else:  # another rclpy: keep its subscription, add ours next to it
+            self._clock_sub = self.create_subscription(RosClock, "/clock", self._on_clock, qos)
+
+    def _on_clock(self, msg, info) -> None:
+        if self._time_source_cb is not None:
+            self._time_source_cb(msg)  # sets the node clock (and fires the jump callbacks)
+        self._clock_seen = True
+        received = info.get("received_timestamp") or time.time_ns()
+        self._clock_hist.append((received, msg.clock.sec * _NS + msg.clock.nanosec))
+
+    def _drain_clock(self) -> None:
+        """Take every /clock message already received (the executor may lag behind DDS)."""
+        sub = self._clock_sub
+        try:
+            with sub.handle:
+                while True:
+                    got = sub.handle.take_message(RosClock, False)
+                    if got is None:
+                        return
+                    self._on_clock(*got)
+        except InvalidHandle:  # use_sim_time switched off at run time
+            self._clock_sub = None
+
+    def _receipt_ns(self, info) -> int | None:
+        """The node clock (ns) when DDS received the message; None: no /clock yet."""
+        received = info.get("received_timestamp", 0) if info else 0
+        if not self._clock.ros_time_is_active:
+            return received if received > 0 else self._clock.now().nanoseconds
+        sub = self._clock_sub
+        ts = getattr(self, "_time_source", None)
+        if sub is None or received <= 0 or (self._time_source_cb is not None
+                                            and getattr(ts, "_clock_sub", None) is not sub):
+            return self._now_ns()
+        self._drain_clock()
+        for t_received, clock_ns in reversed(self._clock_hist):
+            if t_received <= received:
+                return clock_ns
+        return None
+
     def _now_ns(self) -> int | None:
         """Node clock now in ns; None while sim time is on and no /clock has arrived."""
         ns = self._clock.now().nanoseconds
-        if ns == 0 and self._clock.ros_time_is_active:
+        if ns == 0 and not self._clock_seen and self._clock.ros_time_is_active:
             return None
         return ns
 
-    def _on_measured_output(self, msg: Float64MultiArray) -> None:
+    def _on_measured_output(self, msg: Float64MultiArray, info: dict) -> None:
         self._received["measured_output"] += 1
         self._win_received += 1
         if not self._enabled:
             self._dropped_disabled += 1
             return
-        ns = self._now_ns()
+        ns = self._receipt_ns(info)
         if ns is None:
             self._reject("waiting_for_clock")
             return
@@ -366,11 +452,11 @@ class ObserverNode(Node):
             return
         self._publish(out, ns // _NS, ns % _NS)
 
-    def _on_input(self, msg: Float64MultiArray) -> None:
+    def _on_input(self, msg: Float64MultiArray, info: dict) -> None:
         self._received["input"] += 1
         if not self._enabled:
             return
-        ns = self._now_ns()
+        ns = self._receipt_ns(info)
         if ns is None:
             self._reject("waiting_for_clock")
             return
@@ -389,16 +475,13 @@ class ObserverNode(Node):
         if stamp.sec == 0 and stamp.nanosec == 0 and not sim:
             self._reject("zero_stamp")
             return
-        ns = self._now_ns()
-        if ns is None:
-            self._reject("waiting_for_clock")
-            return
         sample = joint_state_sample(msg, self._runner.settings)
         if sample.__class__ is str:
             self._reject(sample)
             return
         t, y, u = sample
-        if t - ns * 1e-9 > self._future_tolerance:
+        ns = self._now_ns()  # None under sim time before the first /clock: no future check
+        if ns is not None and t - ns * 1e-9 > self._future_tolerance:
             self._reject("future_stamp")
             return
         self._last_stamp = t
@@ -425,7 +508,7 @@ class ObserverNode(Node):
         c.data = array.array("d", conv.tobytes())
         self._pub_conv.publish(c)
         if out.unknown_input is not None:
-            if self._pub_ui is None:
+            if self._pub_ui is None:  # an observer that did not declare it
                 self._pub_ui = self.create_publisher(Float64MultiArray, "unknown_input_estimate", 10)
             ui = self._ui_msg
             ui.data = array.array("d", np.asarray(out.unknown_input, dtype=float).tobytes())
@@ -588,10 +671,11 @@ def _error_line(node_name: str, text: str) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``fto-observer`` / ``observer_node``.  Returns the exit status."""
-    args = list(sys.argv if argv is None else argv)
-    if not args or args[0].startswith("-"):
-        args.insert(0, "fto-observer")
+    """Entry point of ``fto-observer`` / ``observer_node``; ``argv`` without the program name.
+
+    Returns the exit status (0, or 2 for a bad parameter / argument).
+    """
+    args = ["fto-observer"] + list(sys.argv[1:] if argv is None else argv)
     head = args[1:args.index("--ros-args")] if "--ros-args" in args else args[1:]
     if "-h" in head or "--help" in head:
         print(_usage())
@@ -619,6 +703,9 @@ def main(argv: list[str] | None = None) -> int:
     code = 0
     try:
         node = ObserverNode()
+        # the imports (sympy, scipy) leave ~1e5 long-lived objects: a full collection of
+        # them takes ~50 ms, a latency spike at 1 kHz; nothing created so far is garbage
+        gc.freeze()
         executor = SingleThreadedExecutor()
         executor.add_node(node)
         executor.spin()

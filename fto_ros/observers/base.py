@@ -75,7 +75,7 @@ class Param:
                     raise ConfigError(name, f"expected true or false, got {value!r}")
                 return bool(value)
             if kind == "int":
-                if isinstance(value, bool) or not float(value).is_integer():
+                if isinstance(value, (bool, str)) or not float(value).is_integer():
                     raise ConfigError(name, f"expected an integer, got {value!r}")
                 out = int(value)
                 self._check_range(name, out)
@@ -102,7 +102,7 @@ class Param:
                     raise ConfigError(name, f"expected a list of strings, got {list(value)!r}")
                 return [str(v) for v in value]
             if kind == "int_array":
-                if not all(not isinstance(v, bool) and float(v).is_integer() for v in value):
+                if not all(not isinstance(v, (bool, str)) and float(v).is_integer() for v in value):
                     raise ConfigError(name, f"expected a list of integers, got {list(value)!r}")
                 out = [int(v) for v in value]
             else:  # double_array

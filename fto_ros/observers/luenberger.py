@@ -110,6 +110,9 @@ class LuenbergerObserver(Observer):
     def update(self, t, y, u):
         y = np.asarray(y, dtype=float)
         u = np.asarray(u, dtype=float)
+        if self._t is None and not np.all(np.isfinite(self.F(y, u))):
+            # the first sample's model term is the next step's starting point
+            raise SampleRejected("non_finite_model_term")
         if self._t is not None:
             u_end = u if self.foh_input else self._u
             w0 = np.concatenate((self._u, self.F(self._y, self._u), self._y))

@@ -380,6 +380,7 @@ class SingleDelayObserver(Observer):
             if mark is not None:
                 self.buffer.rewind(mark)
             raise SampleRejected("non_finite_estimate")
+        w_next = w1 if (u_end is u or np.array_equal(u, u_end)) else self._w(y, u)
         # one-step prediction of Y from the previous estimate: the residual
         ek = math.exp(-self.k * h)
         pred = ek * self._y + (1 - ek) / self.k * (self.A2 @ self._xi_e + w0[n1:n1 + self.q])
@@ -387,7 +388,7 @@ class SingleDelayObserver(Observer):
         self._residual = math.sqrt(r @ r)
         self.buffer.push(t, dl_now, ddl_now)
         self.buffer.trim()
-        self._w_prev = w1 if (u_end is u or np.array_equal(u, u_end)) else self._w(y, u)
+        self._w_prev = w_next
         self._z, self._t, self._y, self._u, self._xi_e = z, t, y, u, xi_e
         self._health = 0.0 if dl_del is None else math.sqrt(dl_del @ dl_del)
         self._publish(y)
@@ -409,6 +410,10 @@ class SingleDelayObserver(Observer):
         self._u = u
 
     def _update_sampled(self, t, y, u):
+        if t < self._t:
+            # an input after this measurement already moved the prediction on
+            raise SampleRejected("measurement_older_than_prediction")
+        self._w(y, u)               # omega = y must give finite model terms (raises if not)
         z, omega, _ = self._integrate(t)
         self._residual = float(np.linalg.norm(y - omega))
         omega = y.copy()                                       # omega(t_j) = Y(t_j)
@@ -455,7 +460,8 @@ class SingleDelayObserver(Observer):
         t = t0 = self._t
         Z = np.concatenate((self._z, self._omega))
         u = self._u
-        steps = max(1, math.ceil((t_end - t0) / self.substep - 1e-9))
+        # t_end == t0 when an input at the measurement's time already moved the prediction on
+        steps = 0 if t_end == t0 else max(1, math.ceil((t_end - t0) / self.substep - 1e-9))
         for i in range(steps):
             t_next = t0 + (i + 1) * (t_end - t0) / steps if i + 1 < steps else t_end
             after = self._converged_at(t)

@@ -67,6 +67,7 @@ class Runner:
         self._t0: float | None = None
         self._last_output: Output | None = None
         self.last_rejection: str | None = None
+        self.last_error: str | None = None
         self._js = self._joint_state_mapping()
 
     # -- configuration ------------------------------------------------------
@@ -107,6 +108,11 @@ class Runner:
             except SampleRejected as exc:
                 self._reject(exc.reason)
                 return exc.reason
+            except Exception as exc:  # noqa: BLE001  as in process(): restart, never a traceback
+                self.reset("observer_error")
+                self.last_error = f"{type(exc).__name__}: {exc}"
+                self._reject("observer_error")
+                return "observer_error"
         return None
 
     def process(self, t: float, y) -> Output | str:
@@ -126,6 +132,10 @@ class Runner:
             elif dt < 0.0:
                 if self.settings["time.reset_on_jump"] and -dt > self.settings["time.jump_threshold"]:
                     self.reset("time_jump")
+                    if obs.n_inputs and self._t_input is not None and self._t_input > t:
+                        # the held input is stamped after the jump target: from the old timeline
+                        self._u = self._t_input = None
+                        reason = "missing_input"
                 else:
                     reason = "stamp_backwards"
             elif dt > self.settings["time.max_gap"]:
@@ -147,6 +157,12 @@ class Runner:
                 self._t0 = None
             self._reject(exc.reason)
             return exc.reason
+        except Exception as exc:  # noqa: BLE001  last line of defence: never a traceback
+            # an observer bug: its state cannot be trusted any more, so restart it
+            self.reset("observer_error")
+            self.last_error = f"{type(exc).__name__}: {exc}"
+            self._reject("observer_error")
+            return "observer_error"
         self._update_us.append((time.perf_counter() - start) * 1e6)
         if first:
             self._t0 = t
@@ -167,6 +183,7 @@ class Runner:
         self.resets[reason] += 1
         self._t0 = None
         self._t_last = None
+
 
     # -- outputs ------------------------------------------------------------
     def _build_output(self, t: float) -> Output | None:
@@ -272,9 +289,11 @@ class Runner:
         if state == "waiting":
             level = max(level, WARN)
             problems.append("no accepted measurement yet" if self.accepted == 0 else "restarted, waiting for a sample")
-        if self.resets.get("non_finite_state"):
+        if self.last_error:
+            values.append(("last observer error", self.last_error))
+        if self.resets.get("non_finite_state") or self.resets.get("observer_error"):
             level = ERROR
-            problems.append("the observer produced non-finite values and was restarted")
+            problems.append("the observer failed (non-finite values or an internal error) and was restarted")
         self._window_start = now
         self._window_accepted = self._window_rejected = 0
         message = state if not problems else f"{state}: " + "; ".join(problems)
@@ -288,9 +307,12 @@ class Runner:
             return f"{what}_not_an_array"
         if length != n:
             return f"{what}_wrong_length"
-        for x in v:
-            if not math.isfinite(x):
-                return f"{what}_non_finite"
+        try:
+            for x in v:
+                if not math.isfinite(x):
+                    return f"{what}_non_finite"
+        except TypeError:
+            return f"{what}_not_numeric"
         return None
 
     def reject(self, reason: str) -> None:

@@ -71,9 +71,9 @@ ROS_BUILTIN = ("use_sim_time", "start_type_description_service")
 def load_params_file(path: str | Path, node_name: str | None = None) -> dict[str, Any]:
     """The flat ``{dotted.name: value}`` parameters of one node block of a ROS 2 params file.
 
-    The block is the one named ``node_name`` (with or without leading ``/``), or
-    ``/**``, or the only block in the file.  ConfigError for a missing or
-    malformed file.
+    As ROS does, the ``/**`` block applies to every node and the block named
+    ``node_name`` (with or without leading ``/``; default: the file's only
+    other block) overrides it.  ConfigError for a missing or malformed file.
     """
     p = Path(path)
     if not p.is_file():
@@ -85,18 +85,24 @@ def load_params_file(path: str | Path, node_name: str | None = None) -> dict[str
     if not isinstance(doc, dict) or not doc:
         raise ConfigError("params file", f"{p} must map a node name to 'ros__parameters'")
     blocks = {str(k).lstrip("/"): v for k, v in doc.items()}
-    if node_name and node_name.lstrip("/") in blocks:
-        block = blocks[node_name.lstrip("/")]
+    for name, block in blocks.items():
+        if not isinstance(block, dict) or not isinstance(block.get("ros__parameters"), dict):
+            raise ConfigError("params file", f"{p}: the block '{name}' needs a 'ros__parameters' mapping")
+    wanted = node_name.lstrip("/") if node_name else None
+    others = [b for b in blocks if b != "**"]
+    if wanted in blocks:
+        own = wanted
+    elif len(others) == 1 and (wanted is None or "**" not in blocks):
+        own = others[0]       # a file with one node block is meant for this node
     elif "**" in blocks:
-        block = blocks["**"]
-    elif len(blocks) == 1:
-        block = next(iter(blocks.values()))
+        own = None            # only the wildcard block applies
     else:
-        raise ConfigError("params file", f"{p} has blocks {sorted(blocks)}; none is for node "
-                          f"{node_name!r}")
-    if not isinstance(block, dict) or not isinstance(block.get("ros__parameters"), dict):
-        raise ConfigError("params file", f"{p}: the node block needs a 'ros__parameters' mapping")
-    return flatten(block["ros__parameters"])
+        raise ConfigError("params file", f"{p} has blocks {sorted(blocks)}; none is for node {wanted!r}")
+    # as ROS does: the wildcard block first, the node's own block overrides it
+    flat = flatten(blocks["**"]["ros__parameters"]) if "**" in blocks else {}
+    if own is not None and own != "**":
+        flat.update(flatten(blocks[own]["ros__parameters"]))
+    return flat
 
 
 def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
