@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import array
 import gc
-import math
 import os
 import sys
 import time
@@ -164,18 +163,18 @@ class ObserverNode(Node):
 
         def publisher(mtype, topic):
             return self.create_publisher(mtype, topic, out_qos, event_callbacks=no_events)
-        self._pub_est = publisher(Float64MultiArray, "state_estimate")
+        self._pub_est = publisher(Float64MultiArray, "~/state_estimate")
         self._est_msg = self._array_msg(obs.state_names, obs.n_states)
-        self._pub_conv = publisher(Float64MultiArray, "convergence")
+        self._pub_conv = publisher(Float64MultiArray, "~/convergence")
         self._conv_msg = self._array_msg(CONVERGENCE_FIELDS, len(CONVERGENCE_FIELDS))
         self._pub_ui = None
         if type(obs).unknown_input is not Observer.unknown_input:  # the class identifies one
-            self._pub_ui = publisher(Float64MultiArray, "unknown_input_estimate")
+            self._pub_ui = publisher(Float64MultiArray, "~/unknown_input_estimate")
         self._ui_msg = Float64MultiArray()
         self._pub_js = None
         self._js_msg = JointState()
         if runner.settings["estimated_joint_states.joint_names"]:
-            self._pub_js = publisher(JointState, "estimated_joint_states")
+            self._pub_js = publisher(JointState, "~/estimated_joint_states")
         self._pub_diag = publisher(DiagnosticArray, "/diagnostics")
 
         # subscriptions: sensor-data QoS (best effort, keep last qos.depth, volatile), overridable
@@ -333,7 +332,7 @@ class ObserverNode(Node):
             return
         # The runner restarts by itself on a backward sample stamp (JointState stamps may
         # jump before /clock does); count one jump once.
-        t_last = self._runner._t_last  # noqa: SLF001 (see the lead's note on last_sample_time)
+        t_last = self._runner._t_last  # noqa: SLF001  (no public accessor for it yet)
         now = self._clock.now().nanoseconds * 1e-9
         if t_last is None or t_last <= now + self._jump_threshold:
             return
@@ -345,9 +344,7 @@ class ObserverNode(Node):
     # --------------------------------------------------------------- samples
     def _reject(self, reason: str) -> None:
         """Count a rejection found by the node (not the runner) in the runner's counters."""
-        runner = self._runner
-        count = getattr(runner, "reject", None) or runner._reject  # noqa: SLF001
-        count(reason)
+        self._runner.reject(reason)
         self._rejected(reason)
 
     def _rejected(self, reason: str) -> None:
@@ -509,7 +506,7 @@ class ObserverNode(Node):
         self._pub_conv.publish(c)
         if out.unknown_input is not None:
             if self._pub_ui is None:  # an observer that did not declare it
-                self._pub_ui = self.create_publisher(Float64MultiArray, "unknown_input_estimate", 10)
+                self._pub_ui = self.create_publisher(Float64MultiArray, "~/unknown_input_estimate", 10)
             ui = self._ui_msg
             ui.data = array.array("d", np.asarray(out.unknown_input, dtype=float).tobytes())
             self._pub_ui.publish(ui)
@@ -607,8 +604,9 @@ config/*.yaml).  Add -p use_sim_time:=true to run on a bag's /clock.
 
 Subscribes   measured_output, input (Float64MultiArray; stamped on receipt)
              or joint_states (JointState; header stamp), per 'source'.
-Publishes    state_estimate, convergence [{fields}] (-1 = no guarantee/unknown),
-             estimated_joint_states, unknown_input_estimate, /diagnostics.
+Publishes    ~/state_estimate, ~/convergence [{fields}]
+             (-1 = no guarantee / unknown), ~/estimated_joint_states,
+             ~/unknown_input_estimate, /diagnostics.
 Services     ~/reset (std_srvs/Trigger), ~/enable (std_srvs/SetBool).
 Exit status  0 on shutdown, 2 on a bad parameter (one log line names it).
 

@@ -1,7 +1,7 @@
 """``fto-play BAG``: publish a rosbag2 bag on live topics with its timing (like ``ros2 bag play``).
 
     fto-play BAG [--rate R] [--clock] [--loop] [--topics T ...] [--delay S]
-                 [--ros-args ...]
+                 [--wait-for-subscribers [TIMEOUT]] [--ros-args ...]
 
 Reads the bag with :mod:`fto_ros.bag` (rosbags, no ROS install needed) and
 republishes ``std_msgs/Float64MultiArray``, ``sensor_msgs/JointState`` and
@@ -11,6 +11,10 @@ log times, before every message whose log time differs from the previous one (no
 at a fixed 40 Hz like ``ros2 bag play --clock``): a node with ``use_sim_time`` that
 stamps Float64MultiArray on receipt then gets each sample's own time.  A recorded
 ``/clock`` topic is not replayed when ``--clock`` is given.
+
+Publishers are reliable, keep last 100, volatile (compatible with best-effort sensor
+subscriptions).  ``--wait-for-subscribers`` holds playback until every played topic has
+a subscriber (at most TIMEOUT s), so the first samples are not lost to discovery.
 
 ``--loop`` replays the bag again and again: the log times (and /clock) jump back at
 every restart, which the observer node detects and counts as one 'time_jump' restart.

@@ -186,10 +186,11 @@ class SingleDelayObserver(Observer):
                               f"overflow on a long run. Use k > {need:.4g} (so -(A1^T + 2kI) is Hurwitz)"
                               + (" and a Hurwitz A1" if np.max(np.linalg.eigvals(A1).real) > 0 else "")
                               + ", or set single_delay.allow_unstable_internal: true for short runs")
-        self.F1 = VectorFunction(cfg["F1"] or ["0"] * n1, q, m, P + "F1", length=n1)
-        self.F2 = VectorFunction(cfg["F2"] or ["0"] * q, q, m, P + "F2", length=q)
+        F1, F2 = cfg["F1"] or ["0"] * n1, cfg["F2"] or ["0"] * q
+        for name, texts, length in (("F1", F1, n1), ("F2", F2, q)):
+            VectorFunction(texts, q, m, P + name, length=length)   # errors name F1[i] / F2[i]
         # both in one compiled function: one call per evaluation on the hot path
-        self.F = VectorFunction((cfg["F1"] or ["0"] * n1) + (cfg["F2"] or ["0"] * q), q, m, P + "F")
+        self.F = VectorFunction(F1 + F2, q, m, P + "F")
         d = design(A1, A2, k, tau)
         if not np.isfinite(d["cond_S"]) or d["cond_S"] > 1e13:
             raise ConfigError(P + "tau", f"the Gramian S is numerically singular (cond(S) = "
