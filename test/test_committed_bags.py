@@ -1,0 +1,60 @@
+"""Replay every committed bag through every committed DC-motor config (what fto-report runs)
+and hold each pair to the numbers the README and the issue state.
+
+Bounds, per (bag, params): the largest |truth - estimate| of (q_dot, current) from the
+settle time on (guaranteed time + 10 ms, or 0.11 s without a guarantee).  Measured values
+are in the README's main-job table; each bound leaves room for machine differences only,
+except where a theorem gives the bound (said below).
+"""
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+
+import pytest
+
+from fto_ros.cli import report
+
+ROOT = Path(__file__).resolve().parents[1]
+replay = importlib.import_module("fto_ros.replay.replay").replay
+
+PAIRS, _ = report.plan(ROOT / "bags", ROOT / "config")
+
+#: (bag, params stem) -> (max |err q_dot|, max |err current|) after the settle time
+BOUNDS = {
+    # Theorem 1: exact after tau; the issue's bar is 1e-3 (measured 1.1e-4, 2.1e-5: the
+    # first-order hold of q between 1 kHz samples)
+    ("dc_motor_nominal", "dc_motor_single_delay"): (1e-3, 1e-3),
+    # noise gain 113 (diagnostics) x |noise| <= ~4 sigma = 4e-3 -> 0.45 rad/s, plus the
+    # uncertainty terms (measured 0.34, 0.064)
+    ("dc_motor_noisy", "dc_motor_single_delay"): (0.6, 0.15),
+    # sampled form, 1-2 ms gaps (measured 0.018, 0.0033)
+    ("dc_motor_sampled", "dc_motor_single_delay_sampled"): (0.05, 0.01),
+    # steady-state Kalman (measured 1.7e-3, 2.8e-4 / 0.10, 0.019 / 7.4e-3, 0.135)
+    ("dc_motor_nominal", "dc_motor_luenberger"): (5e-3, 1e-3),
+    ("dc_motor_noisy", "dc_motor_luenberger"): (0.3, 0.05),
+    ("dc_motor_sampled", "dc_motor_luenberger"): (0.03, 0.4),
+    # pole placement peaks (measured 1.64, 30): bounded, and shown as the bad example
+    ("dc_motor_nominal", "dc_motor_luenberger_poles"): (5.0, 60.0),
+    ("dc_motor_noisy", "dc_motor_luenberger_poles"): (5.0, 60.0),
+    ("dc_motor_sampled", "dc_motor_luenberger_poles"): (5.0, 60.0),
+}
+
+
+def test_every_pair_has_a_bound():
+    assert {(p.bag.name, p.config.stem) for p in PAIRS} == set(BOUNDS)
+
+
+@pytest.mark.parametrize("pair", PAIRS, ids=lambda p: f"{p.bag.name}-{p.config.stem}")
+def test_committed_bag_replays_within_bounds(pair, tmp_path):
+    m = replay(pair.bag, pair.config, tmp_path / "out", progress=False)
+    assert m["samples_rejected"] == 0 and m["restarts"] == 0
+    assert m["samples_accepted"] == m["sample_count"] > 1000
+    err = m["errors"]["per_state"]
+    got = (err["q_dot"]["max_abs_after_settle"], err["current"]["max_abs_after_settle"])
+    bound = BOUNDS[(pair.bag.name, pair.config.stem)]
+    assert got[0] <= bound[0] and got[1] <= bound[1], (got, bound)
+    if pair.config.stem == "dc_motor_single_delay" and pair.bag.name == "dc_motor_nominal":
+        # exact at the guaranteed time, not later
+        assert m["convergence_time_s"] == pytest.approx(0.1, abs=1e-9)
+        assert err["q"]["max_abs"] == 0.0   # q is the measurement itself
