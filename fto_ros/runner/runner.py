@@ -131,10 +131,8 @@ class Runner:
                 reason = "repeated_stamp"
             elif dt < 0.0:
                 if self.settings["time.reset_on_jump"] and -dt > self.settings["time.jump_threshold"]:
-                    self.reset("time_jump")
-                    if obs.n_inputs and self._t_input is not None and self._t_input > t:
-                        # the held input is stamped after the jump target: from the old timeline
-                        self._u = self._t_input = None
+                    self.time_jump(t)
+                    if self._u is None:
                         reason = "missing_input"
                 else:
                     reason = "stamp_backwards"
@@ -177,6 +175,18 @@ class Runner:
         self._window_accepted += 1
         self._last_output = out
         return out
+
+    @property
+    def last_sample_time(self) -> float | None:
+        """Time of the last accepted measurement since the last restart (None right after one)."""
+        return self._t_last
+
+    def time_jump(self, t: float) -> None:
+        """Time went back to t (bag loop, sim time reset): restart, and forget an input
+        stamped after t, which belongs to the old timeline."""
+        self.reset("time_jump")
+        if self.observer.n_inputs and self._t_input is not None and self._t_input > t:
+            self._u = self._t_input = None
 
     def reset(self, reason: str = "service") -> None:
         """Restart the observer at the next sample (counted under ``reason``)."""
