@@ -18,6 +18,18 @@ from collections import OrderedDict
 import numpy as np
 from scipy.linalg import expm
 
+#: step sizes are rounded to this grid (s): a live stream stamped on receipt has jittery
+#: steps, and on a 1 us grid they fall on a few hundred cached step sizes instead of one
+#: new matrix exponential per sample.  An observer keeps its own model time as the sum of
+#: the rounded steps, so the rounding never accumulates (model time stays within 0.5 us
+#: of the stamps); bag stamps on a ms grid are not changed at all.
+STEP_QUANTUM = 1e-6
+
+
+def quantized_step(h: float) -> float:
+    """h rounded to the STEP_QUANTUM grid (0.0 for steps under half a quantum)."""
+    return round(h / STEP_QUANTUM) * STEP_QUANTUM
+
 
 def foh_matrices(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(Phi, G0, G1) of the first-order-hold step of length h > 0."""

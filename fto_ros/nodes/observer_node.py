@@ -227,6 +227,8 @@ class ObserverNode(Node):
             f"{obs.TYPE} observer: {obs.n_states} states, {obs.n_outputs} output(s), "
             f"{obs.n_inputs} input(s); source '{s['source']}'"
             + (", sim time" if self._clock.ros_time_is_active else ""))
+        # the start-up checks' figures (single_delay: tau, cond(S), noise gain, ...)
+        self.get_logger().info("design: " + "; ".join(f"{k} = {v}" for k, v in obs.diagnostics().items()))
 
     def _declare_parameters(self) -> None:
         overrides: dict[str, Parameter] = dict(self._parameter_overrides)

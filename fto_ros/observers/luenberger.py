@@ -16,7 +16,7 @@ import numpy as np
 from scipy.linalg import solve_continuous_are
 from scipy.signal import place_poles
 
-from ..core.discretize import ExactStepper
+from ..core.discretize import ExactStepper, quantized_step
 from ..core.expressions import VectorFunction
 from ..core.linear import observability_rank
 from .base import ConfigError, Observer, Param, SampleRejected, matrix
@@ -113,15 +113,20 @@ class LuenbergerObserver(Observer):
         if self._t is None and not np.all(np.isfinite(self.F(y, u))):
             # the first sample's model term is the next step's starting point
             raise SampleRejected("non_finite_model_term")
+        t_model = t
         if self._t is not None:
+            h = quantized_step(t - self._t)     # model time = sum of these: within 0.5 us of t
+            if h <= 0.0:
+                raise SampleRejected("stamp_too_close")
             u_end = u if self.foh_input else self._u
             w0 = np.concatenate((self._u, self.F(self._y, self._u), self._y))
             w1 = np.concatenate((u_end, self.F(y, u_end), y))
-            x = self.stepper.step(self._x, w0, w1, t - self._t)
+            x = self.stepper.step(self._x, w0, w1, h)
             if not np.all(np.isfinite(x)):
                 raise SampleRejected("non_finite_estimate")
             self._x = x
-        self._t, self._y, self._u = t, y, u
+            t_model = self._t + h
+        self._t, self._y, self._u = t_model, y, u
         self._residual = float(np.linalg.norm(y - self.C @ self._x))
 
     @property

@@ -42,7 +42,7 @@ import numpy as np
 from scipy.linalg import expm
 
 from ..core.delay_buffer import DelayBuffer
-from ..core.discretize import ExactStepper
+from ..core.discretize import ExactStepper, quantized_step
 from ..core.expressions import VectorFunction
 from ..core.linear import observability_rank
 from .base import ConfigError, Observer, Param, SampleRejected, matrix
@@ -361,7 +361,9 @@ class SingleDelayObserver(Observer):
 
     def _update_continuous(self, t, y, u):
         n1, N = self.n1, self._z.shape[0]
-        h = t - self._t
+        h = quantized_step(t - self._t)     # model time = sum of these: within 0.5 us of t
+        if h <= 0.0:
+            raise SampleRejected("stamp_too_close")
         u_end = u if self.foh_input else self._u
         w1 = self._w(y, u_end)
         w0 = self._w_prev
@@ -390,7 +392,7 @@ class SingleDelayObserver(Observer):
         self.buffer.push(t, dl_now, ddl_now)
         self.buffer.trim()
         self._w_prev = w_next
-        self._z, self._t, self._y, self._u, self._xi_e = z, t, y, u, xi_e
+        self._z, self._t, self._y, self._u, self._xi_e = z, self._t + h, y, u, xi_e
         self._health = 0.0 if dl_del is None else math.sqrt(dl_del @ dl_del)
         self._publish(y)
 
