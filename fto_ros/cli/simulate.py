@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import sys
 import time
@@ -43,32 +42,13 @@ import numpy as np
 from .. import __version__
 from ..bag import BagError, BagWriter
 from ..models import MODELS
+from .args import non_negative_float, positive_float
 from ..models.simulate import quantize_ns, simulate, sparse_instants, to_ns, uniform_grid
 
 PROG = "fto-simulate"
 #: metadata.yaml custom_data key holding the simulation settings (JSON)
 METADATA_KEY = "fto_ros.simulation"
 RTOL, ATOL, METHOD = 1e-11, 1e-12, "DOP853"
-
-
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not math.isfinite(value) or value <= 0:
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
-    return value
-
-
-def _nonneg_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not math.isfinite(value) or value < 0:
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text!r}")
-    return value
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -83,12 +63,12 @@ def build_parser() -> argparse.ArgumentParser:
                         f"{', '.join(sorted(MODELS))}")
     parser.add_argument("--out", required=True, metavar="BAG",
                         help="output bag directory (must not exist unless --overwrite)")
-    parser.add_argument("--duration", type=_positive_float, default=10.0, metavar="S",
+    parser.add_argument("--duration", type=positive_float, default=10.0, metavar="S",
                         help="simulated time in seconds (default 10)")
-    parser.add_argument("--rate", type=_positive_float, default=1000.0, metavar="HZ",
+    parser.add_argument("--rate", type=positive_float, default=1000.0, metavar="HZ",
                         help="base rate of input, ground truth and clock, and of the "
                              "measurements unless sparse (default 1000)")
-    parser.add_argument("--noise", type=_nonneg_float, default=0.0, metavar="SIGMA",
+    parser.add_argument("--noise", type=non_negative_float, default=0.0, metavar="SIGMA",
                         help="std. deviation of Gaussian measurement noise on every output "
                              "(default 0: exact measurements)")
     parser.add_argument("--uncertainty", action="store_true",
@@ -98,9 +78,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--sample-times", metavar="FILE",
                         help="measurement instants in seconds (whitespace/comma separated, "
                              "'#' comments), instead of the base rate")
-    parser.add_argument("--sparse-min", type=_positive_float, metavar="S",
+    parser.add_argument("--sparse-min", type=positive_float, metavar="S",
                         help="irregular measurements: smallest gap between instants")
-    parser.add_argument("--sparse-max", type=_positive_float, metavar="S",
+    parser.add_argument("--sparse-max", type=positive_float, metavar="S",
                         help="irregular measurements: largest gap between instants")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace BAG if it exists (only if it is a bag directory)")

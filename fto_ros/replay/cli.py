@@ -8,31 +8,12 @@ to get the traceback of an unexpected error.
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import sys
 
+from ..cli.args import non_negative_float, positive_float
+
 PROG = "fto-replay"
-
-
-def _positive(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
-    return v
-
-
-def _non_negative(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(v) and v >= 0):
-        raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text}")
-    return v
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -52,10 +33,10 @@ def build_parser() -> argparse.ArgumentParser:
                         f"(default {DEFAULT_NODE_NAME})")
     p.add_argument("--overwrite", action="store_true", help="replace an existing OUT")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.add_argument("--after", type=_non_negative, default=None, metavar="T",
+    p.add_argument("--after", type=non_negative_float, default=None, metavar="T",
                    help="settle time (s after the observer starts) for the 'after settling' "
                         "errors (default: the guaranteed time + 0.01 s, or 0.11 s without one)")
-    p.add_argument("--tolerance", type=_positive, default=DEFAULT_TOLERANCE, metavar="TOL",
+    p.add_argument("--tolerance", type=positive_float, default=DEFAULT_TOLERANCE, metavar="TOL",
                    help=f"error bound (state units) defining the measured convergence time "
                         f"(default {DEFAULT_TOLERANCE:g})")
     return p

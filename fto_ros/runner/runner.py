@@ -242,7 +242,7 @@ class Runner:
         out = self._last_output
         if out is None or self._t0 is None:
             return "waiting"
-        since, res, converged = out.convergence[0], out.convergence[1], out.convergence[2]
+        res, converged = out.convergence[1], out.convergence[2]
         if not converged:
             return "converging"
         if res > self.settings["convergence.residual_threshold"]:
