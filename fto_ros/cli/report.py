@@ -96,6 +96,30 @@ def plan(bags_dir: Path, config_dir: Path) -> tuple[list[Pair], list[str]]:
     return pairs, notes
 
 
+def plan_examples(bags_dir: Path, config_dir: Path) -> list[Pair]:
+    """The other example systems: every bag ``BAGS_DIR/<system>`` (not the DC motor's) with
+    every ``CONFIG_DIR/<system>_*.yaml`` (e.g. the prescribed-time examples)."""
+    pairs = []
+    for bag in sorted(p for p in bags_dir.iterdir() if p.is_dir() and not p.name.startswith(SYSTEM)):
+        for cfg in sorted(config_dir.glob(f"{bag.name}_*.yaml")):
+            pairs.append(Pair(bag, cfg))
+    return pairs
+
+
+def system_of(pair: Pair) -> str:
+    """The system a pair belongs to (one table per system)."""
+    return SYSTEM if pair.bag.name.startswith(SYSTEM) else pair.bag.name
+
+
+def tables(pairs: list[Pair]) -> str:
+    """One side-by-side table per system (their states differ)."""
+    out = []
+    for system in dict.fromkeys(system_of(p) for p in pairs):
+        group = [p for p in pairs if system_of(p) == system]
+        out += [f"**{system}**", "", table(group), ""]
+    return "\n".join(out).rstrip()
+
+
 # ------------------------------------------------------------------------ table
 def _g(v, digits: int = 3) -> str:
     if v is None:
@@ -158,9 +182,9 @@ def table(pairs: list[Pair]) -> str:
 
 def markdown(pairs: list[Pair], notes: list[str], out: Path) -> str:
     """The whole report.md."""
-    lines = ["# fto_ros: DC-motor observer comparison", "",
+    lines = ["# fto_ros: observer comparison", "",
              "Every bag replayed offline through every observer with `fto-replay` "
-             "(the same runner code path as the live node).", "", table(pairs), "",
+             "(the same runner code path as the live node).", "", tables(pairs), "",
              "- *guaranteed time*: the observer's guaranteed convergence time after a (re)start "
              "(none: asymptotic only).",
              "- *measured convergence*: first time after the observer's first sample from which "
@@ -190,8 +214,9 @@ def markdown(pairs: list[Pair], notes: list[str], out: Path) -> str:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog=PROG,
-        description="Replay the DC-motor bags through every available observer config and print "
-                    "a side-by-side comparison (also written to OUT/report.md).")
+        description="Replay the DC-motor bags (and the other example systems' bags) through every "
+                    "available observer config and print side-by-side comparisons (also written "
+                    "to OUT/report.md).")
     p.add_argument("--out", default="out", metavar="DIR",
                    help="output directory (default: out); each replay goes to "
                         "DIR/<bag>__<config>/")
@@ -229,6 +254,7 @@ def _main(args) -> int:
         print(f"{PROG}: error: cannot create {out}: {err}", file=sys.stderr)
         return 1
     pairs, notes = plan(bags_dir, config_dir)
+    pairs += plan_examples(bags_dir, config_dir)
     for n in notes:
         print(f"{PROG}: note: {n}", file=sys.stderr)
     if not pairs:
@@ -252,7 +278,7 @@ def _main(args) -> int:
         else:
             print(f"{PROG}: {p.bag.name} with {p.config.name}: done "
                   f"({p.metrics['replay_speed_x_realtime']:.1f}x real time)", file=sys.stderr)
-    print(table(pairs))
+    print(tables(pairs))
     report = out / "report.md"
     try:
         report.write_text(markdown(pairs, notes, out) + "\n")

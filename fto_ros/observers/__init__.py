@@ -6,10 +6,11 @@ from __future__ import annotations
 
 from .base import ConfigError, Observer, Param
 from .luenberger import LuenbergerObserver
+from .prescribed_time import PrescribedTimeObserver
 from .single_delay import SingleDelayObserver
 
 REGISTRY: dict[str, type[Observer]] = {
-    cls.TYPE: cls for cls in (SingleDelayObserver, LuenbergerObserver)
+    cls.TYPE: cls for cls in (SingleDelayObserver, PrescribedTimeObserver, LuenbergerObserver)
 }
 
 
