@@ -21,7 +21,6 @@ draws the largest gain and the error norm over time (docs/prescribed_time_modes.
 from __future__ import annotations
 
 import argparse
-import time
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +28,8 @@ from scipy.linalg import expm
 
 from fto_ros.models.canonical_form import DOUBLE_INTEGRATOR, THIRD_ORDER, CanonicalPlant
 from fto_ros.runner import Runner, load_params_file
+
+from bench_update import matvec_baseline, measure, print_table   # the same measurement
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -70,16 +71,6 @@ def stream(plant: CanonicalPlant, x0, ufun, n: int, h: float = 1e-3):
     for i in range(n - 1):
         x[i + 1] = E[:k, :k] @ x[i] + E[:k, k] * u[i]
     return t, x[:, :1].copy(), u[:, None].copy()
-
-
-def time_calls(fn, n: int) -> np.ndarray:
-    out = np.empty(n)
-    clock = time.perf_counter_ns
-    for i in range(n):
-        t0 = clock()
-        fn(i)
-        out[i] = clock() - t0
-    return out / 1e3
 
 
 #: (label, prescribed_time parameters) of the mode comparison; the cap g_max = 1e3 ends
@@ -177,38 +168,13 @@ def main(argv=None) -> int:
             modes_plot(res, args.plot)
             print(f"\nwrote {args.plot}")
         return 0
-    M, v = np.random.default_rng(0).normal(size=(3, 3)), np.ones(3)
-    base = min(np.median(time_calls(lambda i: M @ v, args.samples)) for _ in range(args.repeats))
+    base = matvec_baseline(args.samples, args.repeats)
     rows = []
     for label, flat, plant, x0, ufun in cases():
         t, y, u = stream(plant, x0, ufun, args.samples)
-        best_obs = best_run = None
-        for _ in range(args.repeats):
-            r = Runner(flat)
-            obs = r.observer
-            obs.reset(t[0])
-            obs.update(t[0], y[0], u[0])
-            upd = time_calls(lambda i: obs.update(t[i + 1], y[i + 1], u[i + 1]), args.samples - 1)
-            r = Runner(flat)
-
-            def proc(i):
-                r.set_input(t[i], u[i])
-                r.process(t[i], y[i])
-            run = time_calls(proc, args.samples)
-            if best_obs is None or np.median(upd) < np.median(best_obs):
-                best_obs = upd
-            if best_run is None or np.median(run) < np.median(best_run):
-                best_run = run
-        rows.append((label, np.median(best_obs), np.percentile(best_obs, 99),
-                     np.median(best_run), np.percentile(best_run, 99)))
-    print(f"numpy baseline (3x3 matvec): {base:.2f} us\n")
-    print("| prescribed_time | update p50 (us) | update p99 (us) | runner.process p50 (us) | "
-          "runner.process p99 (us) | update p50 / matvec |")
-    print("|---|---|---|---|---|---|")
-    for name, p50, p99, r50, r99 in rows:
-        print(f"| {name} | {p50:.1f} | {p99:.1f} | {r50:.1f} | {r99:.1f} | {p50 / base:.0f}x |")
+        rows.append((label, *measure(flat, t, y, u, args.repeats)))
+    print_table("prescribed_time", rows, base)
     return 0
-
 
 if __name__ == "__main__":
     raise SystemExit(main())

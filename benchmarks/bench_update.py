@@ -40,42 +40,58 @@ def time_calls(fn, n: int) -> np.ndarray:
     return out / 1e3
 
 
+def matvec_baseline(samples: int, repeats: int) -> float:
+    """Median time (us) of one 3x3 matrix-vector product: the unit of the ratio column."""
+    M, v = np.random.default_rng(0).normal(size=(3, 3)), np.ones(3)
+    return min(np.median(time_calls(lambda i: M @ v, samples)) for _ in range(repeats))
+
+
+def measure(flat: dict, t, y, u, repeats: int) -> tuple[float, float, float, float]:
+    """(update p50, p99, Runner.process p50, p99) in us: the best of ``repeats`` runs
+    over the sample stream (t, y, u), each on a fresh Runner."""
+    n = len(t)
+    best_obs = best_run = None
+    for _ in range(repeats):
+        obs = Runner(flat).observer
+        obs.reset(t[0])
+        obs.update(t[0], y[0], u[0])
+        upd = time_calls(lambda i: obs.update(t[i + 1], y[i + 1], u[i + 1]), n - 1)
+        r = Runner(flat)
+
+        def proc(i):
+            r.set_input(t[i], u[i])
+            r.process(t[i], y[i])
+        run = time_calls(proc, n)
+        if best_obs is None or np.median(upd) < np.median(best_obs):
+            best_obs = upd
+        if best_run is None or np.median(run) < np.median(best_run):
+            best_run = run
+    return (np.median(best_obs), np.percentile(best_obs, 99),
+            np.median(best_run), np.percentile(best_run, 99))
+
+
+def print_table(first_column: str, rows, base: float) -> None:
+    """The markdown table: rows of (label, update p50, p99, process p50, p99)."""
+    print(f"numpy baseline (3x3 matvec): {base:.2f} us\n")
+    print(f"| {first_column} | update p50 (us) | update p99 (us) | runner.process p50 (us) | "
+          "runner.process p99 (us) | update p50 / matvec |")
+    print("|---|---|---|---|---|---|")
+    for name, p50, p99, r50, r99 in rows:
+        print(f"| {name} | {p50:.1f} | {p99:.1f} | {r50:.1f} | {r99:.1f} | {p50 / base:.0f}x |")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--samples", type=int, default=5000)
     ap.add_argument("--repeats", type=int, default=3, help="best-of repeats of each measurement")
     args = ap.parse_args(argv)
     t, y, u = stream(args.samples)
-    M, v = np.random.default_rng(0).normal(size=(3, 3)), np.ones(3)
-    base = min(np.median(time_calls(lambda i: M @ v, args.samples)) for _ in range(args.repeats))
+    base = matvec_baseline(args.samples, args.repeats)
     rows = []
     for cfg in CONFIGS:
         flat = load_params_file(ROOT / "config" / cfg)
-        best_obs = best_run = None
-        for _ in range(args.repeats):
-            r = Runner(flat)
-            obs = r.observer
-            obs.reset(t[0])
-            obs.update(t[0], y[0], u[0])
-            upd = time_calls(lambda i: obs.update(t[i + 1], y[i + 1], u[i + 1]), args.samples - 1)
-            r = Runner(flat)
-
-            def proc(i):
-                r.set_input(t[i], u[i])
-                r.process(t[i], y[i])
-            run = time_calls(proc, args.samples)
-            if best_obs is None or np.median(upd) < np.median(best_obs):
-                best_obs = upd
-            if best_run is None or np.median(run) < np.median(best_run):
-                best_run = run
-        rows.append((flat["observer.type"], np.median(best_obs), np.percentile(best_obs, 99),
-                     np.median(best_run), np.percentile(best_run, 99)))
-    print(f"numpy baseline (3x3 matvec): {base:.2f} us\n")
-    print("| observer | update p50 (us) | update p99 (us) | runner.process p50 (us) | "
-          "runner.process p99 (us) | update p50 / matvec |")
-    print("|---|---|---|---|---|---|")
-    for name, p50, p99, r50, r99 in rows:
-        print(f"| {name} | {p50:.1f} | {p99:.1f} | {r50:.1f} | {r99:.1f} | {p50 / base:.0f}x |")
+        rows.append((flat["observer.type"], *measure(flat, t, y, u, args.repeats)))
+    print_table("observer", rows, base)
     return 0
 
 
