@@ -46,6 +46,8 @@ class Pair:
     out: Path = field(default=Path())
     metrics: dict[str, Any] | None = None
     error: str | None = None
+    #: the example system (table) this pair belongs to, when not the DC motor
+    system: str | None = None
 
     @property
     def name(self) -> str:
@@ -96,19 +98,33 @@ def plan(bags_dir: Path, config_dir: Path) -> tuple[list[Pair], list[str]]:
     return pairs, notes
 
 
+def example_system(bag: str, config_dir: Path) -> str | None:
+    """The example system a bag belongs to: the longest ``S`` with ``bag == S`` or
+    ``bag == S_<variant>`` for which ``CONFIG_DIR/S_*.yaml`` exist (None: no config)."""
+    parts = bag.split("_")
+    for k in range(len(parts), 0, -1):
+        system = "_".join(parts[:k])
+        if any(config_dir.glob(f"{system}_*.yaml")):
+            return system
+    return None
+
+
 def plan_examples(bags_dir: Path, config_dir: Path) -> list[Pair]:
-    """The other example systems: every bag ``BAGS_DIR/<system>`` (not the DC motor's) with
-    every ``CONFIG_DIR/<system>_*.yaml`` (e.g. the prescribed-time examples)."""
+    """The other example systems: every bag ``BAGS_DIR/<system>[_<variant>]`` (not the DC
+    motor's) with every ``CONFIG_DIR/<system>_*.yaml`` (e.g. the prescribed-time examples;
+    ``possieri_example_sinusoid`` is a variant of ``possieri_example``)."""
     pairs = []
     for bag in sorted(p for p in bags_dir.iterdir() if p.is_dir() and not p.name.startswith(SYSTEM)):
-        for cfg in sorted(config_dir.glob(f"{bag.name}_*.yaml")):
-            pairs.append(Pair(bag, cfg))
+        system = example_system(bag.name, config_dir)
+        if system is not None:
+            pairs += [Pair(bag, cfg, system=system)
+                      for cfg in sorted(config_dir.glob(f"{system}_*.yaml"))]
     return pairs
 
 
 def system_of(pair: Pair) -> str:
     """The system a pair belongs to (one table per system)."""
-    return SYSTEM if pair.bag.name.startswith(SYSTEM) else pair.bag.name
+    return pair.system or (SYSTEM if pair.bag.name.startswith(SYSTEM) else pair.bag.name)
 
 
 def tables(pairs: list[Pair]) -> str:
