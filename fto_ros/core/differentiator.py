@@ -195,7 +195,7 @@ def _build_scalar_step(scheme: str, NT: int, nf: int, abar: np.ndarray, K: np.nd
     numpy path, unrolled with the constants inlined (the per-sample cost of a small
     differentiator is interpreter overhead, not flops)."""
     z = [f"z{p}" for p in range(NT)]
-    L = [f"def step(z, fp, h):", f"    {', '.join(z)}{',' if NT == 1 else ''} = z"]
+    L = ["def step(z, fp, h):", f"    {', '.join(z)}{',' if NT == 1 else ''} = z"]
     L += [f"    h{k} = h{k - 1} * h" if k > 1 else "    h1 = h" for k in range(1, NT)]
 
     def hp(k):
