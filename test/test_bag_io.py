@@ -315,7 +315,7 @@ def test_simulate_cli_sample_times_file(tmp_path):
 
 
 @pytest.mark.parametrize("argv,message", [
-    (["nope", "--out", "X"], "known models: dc_motor"),
+    (["nope", "--out", "X"], "unknown model 'nope'; known models: "),
     (["dc_motor"], "--out"),
     (["dc_motor", "--out", "X", "--duration", "-1"], "--duration"),
     (["dc_motor", "--out", "X", "--rate", "abc"], "--rate"),
@@ -358,7 +358,7 @@ def test_simulate_runs_as_module(tmp_path):
     assert "/dc_motor/true_state 51" in proc.stdout
     proc = subprocess.run([sys.executable, "-m", "fto_ros.cli.simulate", "nope", "--out",
                            str(out)], cwd=ROOT, capture_output=True, text=True)
-    assert proc.returncode == 2 and "known models: dc_motor" in proc.stderr
+    assert proc.returncode == 2 and "unknown model" in proc.stderr and "dc_motor" in proc.stderr
 
 
 def test_bag_layer_imports_no_rclpy():

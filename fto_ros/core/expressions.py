@@ -130,3 +130,40 @@ class VectorFunction:
     def jacobian_y(self) -> list[list[sympy.Expr]]:
         """d f_i / d y_j as sympy expressions."""
         return [[sympy.diff(e, s) for s in self.y_syms] for e in self.exprs]
+
+
+class NamedFunction:
+    """Expressions over arbitrary named scalar symbols, compiled to one plain-Python function.
+
+    ``NamedFunction(["-x1 + y**3"], ["y", "x1"], "global_norm.f")`` parses every text
+    with :func:`parse` against exactly those names (anything else is refused with a
+    ConfigError naming ``parameter[i]``) and compiles the tuple with
+    ``sympy.lambdify(modules='math', cse=True)``; ``fn(*values)`` returns a tuple of
+    floats (all NaN if ``math`` raises, e.g. log(-1) or an overflow).  ``exprs`` keeps
+    the sympy expressions, ``syms`` the symbols (in the order of ``names``), so callers
+    can differentiate or substitute them.
+    """
+
+    def __init__(self, texts: Sequence[str], names: Sequence[str], parameter: str,
+                 length: int | None = None):
+        if length is not None and len(texts) != length:
+            raise ConfigError(parameter, f"expected {length} expression(s), got {len(texts)}")
+        self.syms = [sympy.Symbol(n, real=True) for n in names]
+        self.exprs = [parse(t, self.syms, f"{parameter}[{i}]" if len(texts) > 1 else parameter)
+                      for i, t in enumerate(texts)]
+        self.parameter = parameter
+        self._fn = compile_exprs(self.exprs, self.syms)
+
+    def __len__(self) -> int:
+        return len(self.exprs)
+
+    def __call__(self, *values) -> tuple:
+        try:
+            return self._fn(*values)
+        except (ValueError, OverflowError, ZeroDivisionError, TypeError):
+            return (float("nan"),) * len(self.exprs)
+
+
+def compile_exprs(exprs: Sequence[sympy.Expr], syms: Sequence[sympy.Symbol]) -> Callable:
+    """``fn(*values) -> tuple`` of the sympy ``exprs`` over ``syms`` (lambdify, math, cse)."""
+    return sympy.lambdify(list(syms), tuple(exprs), modules="math", cse=True)

@@ -6,13 +6,15 @@ entry below.
 """
 from __future__ import annotations
 
-from . import canonical_form, dc_motor
+from . import canonical_form, cubic_escape, dc_motor
 from .simulate import ModelSpec, SimulationResult, simulate
 
 MODELS: dict[str, ModelSpec] = {
     dc_motor.SPEC.name: dc_motor.SPEC,
     canonical_form.DOUBLE_INTEGRATOR_SPEC.name: canonical_form.DOUBLE_INTEGRATOR_SPEC,
     canonical_form.THIRD_ORDER_SPEC.name: canonical_form.THIRD_ORDER_SPEC,
+    cubic_escape.CUBIC_ESCAPE_SPEC.name: cubic_escape.CUBIC_ESCAPE_SPEC,
+    cubic_escape.VAN_DER_POL_SPEC.name: cubic_escape.VAN_DER_POL_SPEC,
 }
 
 

@@ -5,12 +5,15 @@ ROS-free: nothing here imports rclpy.
 from __future__ import annotations
 
 from .base import ConfigError, Observer, Param
+from .global_norm import GlobalNormObserver
+from .high_gain import HighGainObserver
 from .luenberger import LuenbergerObserver
 from .prescribed_time import PrescribedTimeObserver
 from .single_delay import SingleDelayObserver
 
 REGISTRY: dict[str, type[Observer]] = {
-    cls.TYPE: cls for cls in (SingleDelayObserver, PrescribedTimeObserver, LuenbergerObserver)
+    cls.TYPE: cls for cls in (SingleDelayObserver, PrescribedTimeObserver, LuenbergerObserver,
+                              GlobalNormObserver, HighGainObserver)
 }
 
 
