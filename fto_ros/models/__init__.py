@@ -6,7 +6,7 @@ entry below.
 """
 from __future__ import annotations
 
-from . import canonical_form, cubic_escape, dc_motor
+from . import canonical_form, cubic_escape, dc_motor, possieri_example
 from .simulate import ModelSpec, SimulationResult, simulate
 
 MODELS: dict[str, ModelSpec] = {
@@ -15,6 +15,7 @@ MODELS: dict[str, ModelSpec] = {
     canonical_form.THIRD_ORDER_SPEC.name: canonical_form.THIRD_ORDER_SPEC,
     cubic_escape.CUBIC_ESCAPE_SPEC.name: cubic_escape.CUBIC_ESCAPE_SPEC,
     cubic_escape.VAN_DER_POL_SPEC.name: cubic_escape.VAN_DER_POL_SPEC,
+    possieri_example.SPEC.name: possieri_example.SPEC,
 }
 
 

@@ -8,12 +8,13 @@ from .base import ConfigError, Observer, Param
 from .global_norm import GlobalNormObserver
 from .high_gain import HighGainObserver
 from .luenberger import LuenbergerObserver
+from .newton_inversion import NewtonInversionObserver
 from .prescribed_time import PrescribedTimeObserver
 from .single_delay import SingleDelayObserver
 
 REGISTRY: dict[str, type[Observer]] = {
     cls.TYPE: cls for cls in (SingleDelayObserver, PrescribedTimeObserver, LuenbergerObserver,
-                              GlobalNormObserver, HighGainObserver)
+                              GlobalNormObserver, HighGainObserver, NewtonInversionObserver)
 }
 
 
