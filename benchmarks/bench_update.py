@@ -21,7 +21,8 @@ from fto_ros.models.simulate import simulate
 from fto_ros.runner import Runner, load_params_file
 
 ROOT = Path(__file__).resolve().parent.parent
-CONFIGS = ["dc_motor_single_delay.yaml", "dc_motor_luenberger.yaml"]
+CONFIGS = ["dc_motor_single_delay.yaml", "dc_motor_luenberger.yaml", "dc_motor_hosm.yaml",
+           "dc_motor_newton.yaml"]
 
 
 def stream(n: int, h: float = 1e-3):

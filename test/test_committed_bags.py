@@ -39,6 +39,20 @@ BOUNDS = {
     ("dc_motor_nominal", "dc_motor_newton"): (0.06, 0.9),
     ("dc_motor_noisy", "dc_motor_newton"): (0.4, 1.3),
     ("dc_motor_sampled", "dc_motor_newton"): (0.07, 0.9),
+    # hosm (Fridman, Levant & Davila) with the load torque as unknown input: exact in finite
+    # time (measured 6.1e-6, 8.9e-7 with or without the load); the noisy and sampled bags as
+    # for the others (measured 0.34, 0.20 / 3.2e-3, 0.135: the input changes between the
+    # sparse samples)
+    ("dc_motor_nominal", "dc_motor_hosm"): (1e-4, 1e-4),
+    ("dc_motor_load", "dc_motor_hosm"): (1e-4, 1e-4),
+    ("dc_motor_noisy", "dc_motor_hosm"): (0.6, 0.4),
+    ("dc_motor_sampled", "dc_motor_hosm"): (0.01, 0.3),
+    # the unknown load torque biases every observer that does not estimate it (measured
+    # 0.074, 6.0e-3 / 0.093, 0.011 / 0.026, 0.99; poles 1.65, 30.6)
+    ("dc_motor_load", "dc_motor_single_delay"): (0.15, 0.015),
+    ("dc_motor_load", "dc_motor_luenberger"): (0.2, 0.03),
+    ("dc_motor_load", "dc_motor_newton"): (0.06, 2.0),
+    ("dc_motor_load", "dc_motor_luenberger_poles"): (5.0, 60.0),
     # pole placement peaks (measured 1.64, 30): bounded, and shown as the bad example
     ("dc_motor_nominal", "dc_motor_luenberger_poles"): (5.0, 60.0),
     ("dc_motor_noisy", "dc_motor_luenberger_poles"): (5.0, 60.0),
@@ -67,36 +81,41 @@ def test_committed_bag_replays_within_bounds(pair, tmp_path):
 
 EXAMPLES = report.plan_examples(ROOT / "bags", ROOT / "config")
 
-#: (bag, params stem) -> (settle time or None for the replay's default, bound on the largest
-#: |truth - estimate| over every state after it)
+#: (bag, params stem) -> bound on the largest |truth - estimate| over every state after the
+#: settle time (the config's metrics.settle_time, or the replay's default)
 EXAMPLE_BOUNDS = {
     # Holloway & Krstic: exact at T, then window after window (mode restart).  The floor is
     # the simulator's tolerance (measured 4.2e-12 double integrator, 6.6e-10 third order)
-    ("double_integrator", "double_integrator_prescribed_time"): (None, 1e-8),
-    ("third_order", "third_order_prescribed_time"): (None, 1e-8),
+    ("double_integrator", "double_integrator_prescribed_time"): 1e-8,
+    ("third_order", "third_order_prescribed_time"): 1e-8,
+    # Fridman, Levant & Davila from 5 s on.  Example 1 carries the paper's output noise 0.1:
+    # the states are noise-limited (measured x4 1.7; docs/hosm.md explains the paper's 0.2);
+    # Example 2's zero-dynamics coordinates converge only asymptotically (measured x5 1.4)
+    ("fld_example1", "fld_example1_hosm"): 3.0,
+    ("fld_example2", "fld_example2_hosm"): 3.0,
     # Possieri, Vidano & Novara, example (22), from 2 s on.  Noiseless: the discretisation
     # level (measured 4.0e-5; the issue says about 1e-4); the notch costs phase at the
     # signal's frequencies (1.6e-2); (21) cannot be filtered (0.18)
-    ("possieri_example", "possieri_example_newton"): (2.0, 2e-4),
-    ("possieri_example", "possieri_example_newton_notch"): (2.0, 0.04),
-    ("possieri_example", "possieri_example_newton_ndim"): (2.0, 0.4),
+    ("possieri_example", "possieri_example_newton"): 2e-4,
+    ("possieri_example", "possieri_example_newton_notch"): 0.04,
+    ("possieri_example", "possieri_example_newton_ndim"): 0.4,
     # 0.01 sin 48t: (11) with the notch beats (21) (measured 0.29 against 0.65; 0.56 unfiltered)
-    ("possieri_example_sinusoid", "possieri_example_newton"): (2.0, 1.2),
-    ("possieri_example_sinusoid", "possieri_example_newton_notch"): (2.0, 0.5),
-    ("possieri_example_sinusoid", "possieri_example_newton_ndim"): (2.0, 1.3),
+    ("possieri_example_sinusoid", "possieri_example_newton"): 1.2,
+    ("possieri_example_sinusoid", "possieri_example_newton_notch"): 0.5,
+    ("possieri_example_sinusoid", "possieri_example_newton_ndim"): 1.3,
     # sigma 0.32 on y, about y's own size (measured 2.2, 1.6, 2.3)
-    ("possieri_example_white_noise", "possieri_example_newton"): (2.0, 5.0),
-    ("possieri_example_white_noise", "possieri_example_newton_notch"): (2.0, 4.0),
-    ("possieri_example_white_noise", "possieri_example_newton_ndim"): (2.0, 5.0),
+    ("possieri_example_white_noise", "possieri_example_newton"): 5.0,
+    ("possieri_example_white_noise", "possieri_example_newton_notch"): 4.0,
+    ("possieri_example_white_noise", "possieri_example_newton_ndim"): 5.0,
     # Astolfi & Praly, asymptotic: from 1 s on.  cubic_escape ends 54 ms before the escape,
     # |x1| ~ 1e5 there: the absolute x1 error is the 1 kHz sampling floor (measured 0.31,
     # relative 6.4e-4; test_global_norm holds the relative error); the saturated
     # constant-gain observer loses the estimate once |x| > M = 10 (measured 14.2)
-    ("cubic_escape", "cubic_escape_global_norm"): (1.0, 0.6),
-    ("cubic_escape", "cubic_escape_high_gain"): (1.0, 30.0),
+    ("cubic_escape", "cubic_escape_global_norm"): 0.6,
+    ("cubic_escape", "cubic_escape_high_gain"): 30.0,
     # from x_hat(0) = (10, -10), x(0) = (2, 0) (measured 1.2e-7, 5.4e-7)
-    ("van_der_pol", "van_der_pol_global_norm"): (1.0, 1e-5),
-    ("van_der_pol", "van_der_pol_high_gain"): (1.0, 1e-5),
+    ("van_der_pol", "van_der_pol_global_norm"): 1e-5,
+    ("van_der_pol", "van_der_pol_high_gain"): 1e-5,
 }
 
 
@@ -106,8 +125,19 @@ def test_every_example_pair_has_a_bound():
 
 @pytest.mark.parametrize("pair", EXAMPLES, ids=lambda p: f"{p.bag.name}-{p.config.stem}")
 def test_example_replays_within_bounds(pair, tmp_path):
-    after, bound = EXAMPLE_BOUNDS[(pair.bag.name, pair.config.stem)]
-    m = replay(pair.bag, pair.config, tmp_path / "out", progress=False, after=after)
+    bound = EXAMPLE_BOUNDS[(pair.bag.name, pair.config.stem)]
+    m = replay(pair.bag, pair.config, tmp_path / "out", progress=False)
     assert m["samples_rejected"] == 0 and m["samples_accepted"] == m["sample_count"] > 1000
     worst = max(e["max_abs_after_settle"] for e in m["errors"]["per_state"].values())
     assert worst < bound, m["errors"]["per_state"]
+
+
+def test_load_torque_identified_on_the_load_bag(tmp_path):
+    """hosm identifies the unknown load torque (measured max error 4.8e-4 after 0.11 s,
+    the torque itself swings by several units)."""
+    m = replay(ROOT / "bags" / "dc_motor_load", ROOT / "config" / "dc_motor_hosm.yaml",
+               tmp_path / "out", progress=False)
+    ui = m["unknown_input_errors"]["per_state"]
+    (name, err), = ui.items()
+    assert err["max_abs"] > 1.0                       # it starts far off
+    assert err["max_abs_after_settle"] < 2e-3, ui

@@ -160,12 +160,20 @@ def _state_columns(pairs: list[Pair]) -> list[str]:
     return ["/".join(names) for names in labels]
 
 
+def _unknown_input_errors(pair: Pair) -> dict:
+    """Per unknown input, the error statistics of a replay (empty without truth or estimate)."""
+    errs = (pair.metrics or {}).get("unknown_input_errors") or {}
+    return errs.get("per_state") or {}
+
+
 def table(pairs: list[Pair]) -> str:
     """The side-by-side markdown table of the replays."""
     states = _state_columns(pairs)
+    unknown = list(dict.fromkeys(name for p in pairs for name in _unknown_input_errors(p)))
     head = (["bag", "observer (params)", "guaranteed time (s)", "measured convergence (s)",
              "settle (s)"]
             + [f"max abs err {s}" for s in states] + [f"RMS err {s}" for s in states]
+            + [f"max abs err {s} (unknown input)" for s in unknown]
             + ["rejected", "update p50 (us)", "replay speed (x real time)"])
     rows = [head, ["---"] * len(head)]
     for p in pairs:
@@ -191,6 +199,8 @@ def table(pairs: list[Pair]) -> str:
              conv, _g(m["settle_time_s"], 4)]
             + [_g(e["max_abs_after_settle"]) if e else "n/a" for e in per]
             + [_g(e["rms_after_settle"]) if e else "n/a" for e in per]
+            + [_g(_unknown_input_errors(p)[u]["max_abs_after_settle"])
+               if u in _unknown_input_errors(p) else "n/a" for u in unknown]
             + [str(rej), _g(m["update_time_us"]["p50"], 3),
                _g(m["replay_speed_x_realtime"], 3)])
     return "\n".join("| " + " | ".join(str(c) for c in row) + " |" for row in rows)
@@ -202,13 +212,15 @@ def markdown(pairs: list[Pair], notes: list[str], out: Path) -> str:
              "Every bag replayed offline through every observer with `fto-replay` "
              "(the same runner code path as the live node).", "", tables(pairs), "",
              "- *guaranteed time*: the observer's guaranteed convergence time after a (re)start "
-             "(none: asymptotic only).",
+             "(none: asymptotic, or finite time without a computable bound).",
              "- *measured convergence*: first time after the observer's first sample from which "
              "the largest absolute error over all states stays below the tolerance to the end "
              "of the bag (never: it does not).",
              "- *max abs err*, *RMS err*: truth - estimate over the samples at least *settle* "
              "seconds after the observer's (re)start (the guaranteed time + 0.01 s, or 0.11 s "
-             "without a guarantee), in state units.",
+             "without a guarantee, or the config's metrics.settle_time), in state units; "
+             "*(unknown input)*: the same for the identified unknown input where the bag has "
+             "its truth.",
              "- *update p50*: median wall time of one `Runner.process` call (validation, "
              "observer update, outputs); *replay speed*: bag duration / wall time of the whole "
              "replay (read, runner, write), on the machine that made this report.", ""]

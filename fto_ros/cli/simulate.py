@@ -17,7 +17,14 @@ Topics (``SYS`` = the model name, e.g. ``dc_motor``):
 - ``/SYS/true_state`` (Float64MultiArray): the true state, at the base rate
   *and* at every measurement instant (so ground truth exists wherever an
   estimate can be produced).
+- ``/SYS/true_unknown_input`` (Float64MultiArray): the true unknown input zeta(t), at the
+  instants of ``true_state``, for models with one (``UnknownInputModelSpec``: the
+  ``fld_example*`` plants, ``dc_motor_load``).
 - ``/clock`` (rosgraph_msgs/Clock): at every instant where anything is published.
+
+``SYS`` is the model's ``system_name`` when it has one (``dc_motor_load`` records on the
+``/dc_motor`` topics).  ``--output-disturbance`` adds the model's deterministic output
+disturbance (``fld_example1``: the paper's noise 0.1 sin(1037 |cos(687 t)|)).
 
 The log time of every message is its sample time, ``round(t * 1e9)`` ns with
 ``t = 0`` at the start of the simulation (MCAP and rosbag2 accept 0).  Within
@@ -82,6 +89,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="irregular measurements: smallest gap between instants")
     parser.add_argument("--sparse-max", type=positive_float, metavar="S",
                         help="irregular measurements: largest gap between instants")
+    parser.add_argument("--output-disturbance", action="store_true",
+                        help="add the model's deterministic output disturbance (models that "
+                             "define one, e.g. fld_example1)")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace BAG if it exists (only if it is a bag directory)")
     return parser
@@ -146,6 +156,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                      f"(limit 5e7)")
     if args.noise > 0 and spec.p == 0:
         parser.error(f"model {spec.name} has no outputs to add noise to")
+    disturbance = getattr(spec, "output_disturbance", None)
+    if args.output_disturbance and disturbance is None:
+        parser.error(f"model {spec.name} defines no output disturbance")
     if args.uncertainty and spec.uncertainty is None:
         parser.error(f"model {spec.name} defines no uncertainty")
     out = Path(args.out)
@@ -173,9 +186,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         .reshape(t_meas.size, spec.p)
     y = y_true + args.noise * noise_rng.standard_normal(y_true.shape) if args.noise > 0 \
         else y_true
+    if args.output_disturbance:
+        y = y + np.array([np.atleast_1d(disturbance(float(tk))) for tk in t_meas]).reshape(y.shape)
+    zeta_fn = getattr(spec, "unknown_input", None)
+    zeta = None if zeta_fn is None else \
+        np.array([np.atleast_1d(zeta_fn(float(tk))) for tk in t_all], dtype=float)
     sim_time = time.perf_counter() - started
 
-    sys_name = spec.name
+    sys_name = getattr(spec, "system", None) or spec.name
     topics = {
         "input": f"/{sys_name}/input",
         "measured_output": f"/{sys_name}/measured_output",
@@ -183,6 +201,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         "true_state": f"/{sys_name}/true_state",
         "clock": "/clock",
     }
+    if zeta is not None:
+        topics["true_unknown_input"] = f"/{sys_name}/true_unknown_input"
     if spec.m == 0:
         del topics["input"]
     if not spec.joint_names:
@@ -214,6 +234,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         "topics": topics,
         "log_time": "sample time, round(t * 1e9) ns, t = 0 at the start",
     }
+    if zeta is not None:
+        settings["unknown_input"] = {"names": list(spec.unknown_input_names),
+                                     "description": spec.unknown_input_description}
+    if disturbance is not None:
+        settings["output_disturbance"] = {
+            "enabled": bool(args.output_disturbance),
+            "description": spec.output_disturbance_description if args.output_disturbance
+            else "none"}
 
     is_input = np.zeros(t_all.size, dtype=bool)
     is_input[np.searchsorted(t_all, base)] = True
@@ -233,6 +261,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 if is_input[i] and spec.m:
                     bag.float_array(topics["input"], t_ns, u_at[i])
                 bag.float_array(topics["true_state"], t_ns, sim.x[i])
+                if zeta is not None:
+                    bag.float_array(topics["true_unknown_input"], t_ns, zeta[i])
                 if is_meas[i]:
                     yj = y[meas_row[i]]
                     bag.float_array(topics["measured_output"], t_ns, yj)

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .errors import ConfigError
+
 
 def observability_matrix(A: np.ndarray, C: np.ndarray) -> np.ndarray:
     """[C; C A; ...; C A^(n-1)]."""
@@ -28,3 +30,22 @@ def observability_rank(A: np.ndarray, C: np.ndarray) -> int:
         tol = max(pbh.shape) * np.finfo(float).eps * max(s[0], 1.0) * 1e3
         worst = min(worst, int(np.sum(s > tol)))
     return worst
+
+
+def place_observer_poles(A: np.ndarray, C: np.ndarray, poles, parameter: str) -> np.ndarray:
+    """Gain L (n x p) placing the eigenvalues of A - L C at ``poles`` (negative reals), or
+    ConfigError naming ``parameter``."""
+    from scipy.signal import place_poles        # scipy.signal is slow to import: only here
+    n, p = A.shape[0], C.shape[0]
+    poles = np.asarray(poles, dtype=float)
+    if poles.size != n:
+        raise ConfigError(parameter, f"expected {n} poles, got {poles.size}")
+    if np.any(poles >= 0):
+        raise ConfigError(parameter, f"all poles must be negative, got {poles.tolist()}")
+    if p == 1 and len(set(poles.tolist())) < n:
+        raise ConfigError(parameter, "with one output the poles must be distinct")
+    try:
+        return place_poles(A.T, C.T, poles).gain_matrix.T
+    except ValueError as exc:
+        raise ConfigError(parameter, f"cannot place {poles.tolist()} ({exc}); when (A, C) is "
+                          "not observable give the gain L directly") from None

@@ -6,16 +6,19 @@ entry below.
 """
 from __future__ import annotations
 
-from . import canonical_form, cubic_escape, dc_motor, possieri_example
+from . import canonical_form, dc_motor
+from . import dc_motor_load, fld_examples
+from . import possieri_example
+from . import cubic_escape
 from .simulate import ModelSpec, SimulationResult, simulate
 
 MODELS: dict[str, ModelSpec] = {
+    **{m.name: m for m in (cubic_escape.CUBIC_ESCAPE_SPEC, cubic_escape.VAN_DER_POL_SPEC)},
+    **{m.name: m for m in (fld_examples.EXAMPLE1_SPEC, fld_examples.EXAMPLE2_SPEC, dc_motor_load.SPEC)},
     dc_motor.SPEC.name: dc_motor.SPEC,
+    possieri_example.SPEC.name: possieri_example.SPEC,
     canonical_form.DOUBLE_INTEGRATOR_SPEC.name: canonical_form.DOUBLE_INTEGRATOR_SPEC,
     canonical_form.THIRD_ORDER_SPEC.name: canonical_form.THIRD_ORDER_SPEC,
-    cubic_escape.CUBIC_ESCAPE_SPEC.name: cubic_escape.CUBIC_ESCAPE_SPEC,
-    cubic_escape.VAN_DER_POL_SPEC.name: cubic_escape.VAN_DER_POL_SPEC,
-    possieri_example.SPEC.name: possieri_example.SPEC,
 }
 
 

@@ -5,17 +5,18 @@ ROS-free: nothing here imports rclpy.
 from __future__ import annotations
 
 from .base import ConfigError, Observer, Param
-from .global_norm import GlobalNormObserver
-from .high_gain import HighGainObserver
 from .luenberger import LuenbergerObserver
-from .newton_inversion import NewtonInversionObserver
 from .prescribed_time import PrescribedTimeObserver
 from .single_delay import SingleDelayObserver
+from .global_norm import GlobalNormObserver
+from .high_gain import HighGainObserver
+from .hosm import HosmObserver
+from .newton_inversion import NewtonInversionObserver
 
 REGISTRY: dict[str, type[Observer]] = {
-    cls.TYPE: cls for cls in (SingleDelayObserver, PrescribedTimeObserver, LuenbergerObserver,
-                              GlobalNormObserver, HighGainObserver, NewtonInversionObserver)
+    cls.TYPE: cls for cls in (NewtonInversionObserver, SingleDelayObserver, PrescribedTimeObserver, LuenbergerObserver, HosmObserver)
 }
+REGISTRY.update({cls.TYPE: cls for cls in (GlobalNormObserver, HighGainObserver)})
 
 
 def observer_class(type_name: str) -> type[Observer]:

@@ -432,7 +432,6 @@ class GlobalNormObserver(Observer):
         yk = float(y[0])
         if not math.isfinite(yk):
             raise SampleRejected("non_finite_output")
-        m = self.n_states
         if self._t is None:
             try:
                 gh, a, k, dk = self._vals(self._w)

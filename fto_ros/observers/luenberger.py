@@ -14,11 +14,10 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.linalg import solve_continuous_are
-from scipy.signal import place_poles
 
 from ..core.discretize import ExactStepper, quantized_step
 from ..core.expressions import VectorFunction
-from ..core.linear import observability_rank
+from ..core.linear import observability_rank, place_observer_poles
 from .base import ConfigError, Observer, Param, SampleRejected, matrix
 
 P = "luenberger."
@@ -60,17 +59,7 @@ class LuenbergerObserver(Observer):
             raise ConfigError(P + "C", f"(A, C) is not observable: the observability matrix has rank "
                               f"{observability_rank(A, C)} < n = {n}")
         if cfg["design"] == "poles":
-            poles = np.asarray(cfg["poles"], dtype=float)
-            if poles.size != n:
-                raise ConfigError(P + "poles", f"expected {n} poles, got {poles.size}")
-            if np.any(poles >= 0):
-                raise ConfigError(P + "poles", f"all poles must be negative, got {poles.tolist()}")
-            if p == 1 and len(set(poles.tolist())) < n:
-                raise ConfigError(P + "poles", "with one output the poles must be distinct")
-            try:
-                L = place_poles(A.T, C.T, poles).gain_matrix.T
-            except ValueError as exc:
-                raise ConfigError(P + "poles", f"cannot place {poles.tolist()}: {exc}") from None
+            L = place_observer_poles(A, C, cfg["poles"], P + "poles")
         else:
             q = np.asarray(cfg["process_noise"], dtype=float)
             r = np.asarray(cfg["measurement_noise"], dtype=float)

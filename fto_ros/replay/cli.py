@@ -35,7 +35,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--after", type=non_negative_float, default=None, metavar="T",
                    help="settle time (s after the observer starts) for the 'after settling' "
-                        "errors (default: the guaranteed time + 0.01 s, or 0.11 s without one)")
+                        "errors (default: metrics.settle_time of the params file, else the "
+                        "guaranteed time + 0.01 s, or 0.11 s without one)")
     p.add_argument("--tolerance", type=positive_float, default=DEFAULT_TOLERANCE, metavar="TOL",
                    help=f"error bound (state units) defining the measured convergence time "
                         f"(default {DEFAULT_TOLERANCE:g})")
@@ -71,6 +72,14 @@ def summary(m: dict) -> str:
                                             for k, v in per.items()))
     else:
         lines.append(f"  {m['errors_note']}")
+    if m.get("unknown_input_errors"):
+        per = m["unknown_input_errors"]["per_state"]
+        lines.append(f"  unknown input after {m['settle_time_s']:g} s: max |error| "
+                     + ", ".join(f"{k} {_fmt(v['max_abs_after_settle'])}" for k, v in per.items())
+                     + "; RMS " + ", ".join(f"{k} {_fmt(v['rms_after_settle'])}"
+                                            for k, v in per.items()))
+    elif m.get("unknown_input_errors_note"):
+        lines.append(f"  {m['unknown_input_errors_note']}")
     u = m["update_time_us"]
     lines.append(f"  update p50/p99: {_fmt(u['p50'], '.1f')} / {_fmt(u['p99'], '.1f')} us; "
                  f"replay {_fmt(m['replay_speed_x_realtime'], '.1f')}x real time "

@@ -28,12 +28,17 @@ def plot_replay(path: str | Path, *, t: np.ndarray, estimate: np.ndarray,
                 truth: np.ndarray | None = None, err_t: np.ndarray | None = None,
                 err_norm: np.ndarray | None = None, guaranteed_time: float = math.inf,
                 settle_time: float | None = None, tolerance: float | None = None,
-                t_start: float = 0.0, title: str = "") -> Path:
+                t_start: float = 0.0, title: str = "",
+                ui_t: np.ndarray | None = None, ui_estimate: np.ndarray | None = None,
+                ui_truth_t: np.ndarray | None = None, ui_truth: np.ndarray | None = None,
+                ui_names: Sequence[str] = ()) -> Path:
     """Write the replay figure to ``path`` (PNG) and return the path.
 
     Times are seconds since the start of the bag.  ``t``/``estimate``: the
     accepted samples (N,), (N, n); ``truth_t``/``truth``: ground truth (may be
     None); ``err_t``/``err_norm``: the error norm at the matched samples.
+    ``ui_*``: the unknown-input estimate (and its truth, may be None), one more
+    panel per component, drawn like the states.
     ``guaranteed_time`` (seconds after ``t_start``, the observer's first
     sample) is marked by a labelled vertical line; inf means no guarantee.
     """
@@ -46,7 +51,12 @@ def plot_replay(path: str | Path, *, t: np.ndarray, estimate: np.ndarray,
     estimate = estimate.reshape(len(t), n)
     has_truth = truth is not None and truth_t is not None and len(truth_t) > 0
     has_err = err_norm is not None and err_t is not None and len(err_t) > 0
-    rows = n + (1 if has_err else 0)
+    has_ui = ui_estimate is not None and ui_t is not None and len(ui_t) > 0
+    n_ui = 0
+    if has_ui:
+        ui_estimate = np.asarray(ui_estimate, dtype=float).reshape(len(ui_t), -1)
+        n_ui = ui_estimate.shape[1]
+    rows = n + n_ui + (1 if has_err else 0)
     fig = Figure(figsize=(9.0, 1.9 * rows + 0.8), dpi=110)
     FigureCanvasAgg(fig)
     axes = fig.subplots(rows, 1, sharex=True, squeeze=False)[:, 0]
@@ -90,6 +100,33 @@ def plot_replay(path: str | Path, *, t: np.ndarray, estimate: np.ndarray,
             handles, labels = ax.get_legend_handles_labels()
             fig.legend(handles, labels, loc="upper center", ncol=len(labels), fontsize=8,
                        bbox_to_anchor=(0.5, 0.965), frameon=False)
+    if has_ui:
+        ue_t, ue = _decimate(np.asarray(ui_t, float), ui_estimate)
+        has_ui_truth = ui_truth is not None and ui_truth_t is not None and len(ui_truth_t) > 0
+        if has_ui_truth:
+            ut = np.asarray(ui_truth_t, dtype=float)
+            ux = np.asarray(ui_truth, dtype=float).reshape(len(ut), -1)
+            ut, ux = _decimate(ut, ux)
+        for j in range(n_ui):
+            ax = axes[n + j]
+            name = ui_names[j] if j < len(ui_names) else f"zeta{j}"
+            clipped = False
+            if has_ui_truth and j < ux.shape[1]:
+                ax.plot(ut, ux[:, j], color="black", linewidth=1.0)
+                lo, hi = float(np.min(ux[:, j])), float(np.max(ux[:, j]))
+                pad = max(0.5 * (hi - lo), 0.05 * max(abs(lo), abs(hi)), 1e-6)
+                ylim = (lo - pad, hi + pad)
+                clipped = bool(np.any(ue[:, j] < ylim[0]) or np.any(ue[:, j] > ylim[1]))
+            ax.plot(ue_t, ue[:, j], color="tab:orange", linewidth=0.9,
+                    linestyle="--" if has_ui_truth else "-")
+            if clipped:
+                ax.set_ylim(*ylim)
+                ax.text(0.99, 0.04, "estimate clipped (transient off scale)",
+                        transform=ax.transAxes, fontsize=7, ha="right", va="bottom",
+                        color="tab:orange")
+            mark(ax, label=False)
+            ax.set_ylabel(f"{name} (unknown input)", fontsize=8)
+            ax.grid(True, alpha=0.3)
     if has_err:
         ax = axes[-1]
         et, en = _decimate(np.asarray(err_t, float), np.asarray(err_norm, float))
@@ -110,7 +147,7 @@ def plot_replay(path: str | Path, *, t: np.ndarray, estimate: np.ndarray,
         axes[0].text(0.5, 0.5, "no accepted samples", transform=axes[0].transAxes,
                      ha="center", va="center", fontsize=12, color="tab:red")
     if not guaranteed:
-        axes[0].text(0.01, 0.95, "no guaranteed convergence time (asymptotic observer)",
+        axes[0].text(0.01, 0.95, "no guaranteed convergence time",
                      transform=axes[0].transAxes, fontsize=8, va="top", color="tab:red")
     axes[-1].set_xlabel("bag time (s)")
     fig.tight_layout(rect=(0.0, 0.0, 1.0, 0.955))

@@ -71,7 +71,7 @@ _KIND_INPUT, _KIND_MEAS, _KIND_JOINT, _KIND_TRUTH = 0, 1, 2, 3
 
 
 _ROLE_NAMES = {"meas": "measured_output", "inputs": "input", "joints": "joint_states",
-               "truth": "true_state"}
+               "truth": "true_state", "truth_ui": "true_unknown_input"}
 
 
 class ReplayError(Exception):
@@ -527,6 +527,7 @@ class _Streams:
     meas: tuple = _EMPTY
     joints: tuple = _EMPTY
     truth: tuple = _EMPTY
+    truth_ui: tuple = _EMPTY                          # true unknown input, when the bag has it
     truth_copy: list = field(default_factory=list)  # raw CDR (fast path) or messages
     truth_raw: bool = True
     reader: str = ""
@@ -590,6 +591,10 @@ class _Run:
     roles: dict = field(default_factory=dict)
     truth_topic: str = ""
     truth_note: str | None = None
+    truth_ui_topic: str = ""
+    truth_ui_note: str | None = None
+    est_ui_idx: list = field(default_factory=list)    # index into est_* of each unknown-input estimate
+    est_ui: list = field(default_factory=list)
     streams: _Streams | None = None
     est_t: list = field(default_factory=list)
     est_x: list = field(default_factory=list)
@@ -631,6 +636,13 @@ def _run(runner: Runner, bag_path: Path, out_dir: Path, fqn: str, overwrite: boo
                             f"not {F64_ARRAY}")
         else:
             roles["truth"] = truth_topic
+        r.truth_ui_topic = ui_topic = resolve_topic(
+            settings.get("topics.true_unknown_input", "true_unknown_input"), fqn)
+        if ui_topic in topics and topics[ui_topic].msgtype == F64_ARRAY:
+            roles["truth_ui"] = ui_topic
+        else:
+            r.truth_ui_note = (f"no unknown-input ground truth: the bag has no {F64_ARRAY} "
+                               f"topic {ui_topic}")
         typestore = getattr(reader, "typestore", None) or jazzy_typestore()
         r.streams = streams = _read_streams(bag_path, reader, roles, typestore)
     wall_read = time.perf_counter()
@@ -659,6 +671,7 @@ def _run(runner: Runner, bag_path: Path, out_dir: Path, fqn: str, overwrite: boo
     tick_ns = max((t_last - t_first) // 200, 1)
     bar = _Progress(progress, t_first, t_last)
     est_t, est_x, est_conv, proc_s = r.est_t, r.est_x, r.est_conv, r.proc_s
+    est_ui_idx, est_ui = r.est_ui_idx, r.est_ui
     counts = r.counts
     inputs, meas, joints = streams.inputs[1], streams.meas[1], streams.joints[1]
     truth_copy = streams.truth_copy
@@ -768,6 +781,8 @@ def _run(runner: Runner, bag_path: Path, out_dir: Path, fqn: str, overwrite: boo
                 ui = np.asarray(out.unknown_input, dtype=np.float64)
                 w_ui(s_ns, enc.float_array(ui.size)(ui))
                 n_ui += 1
+                est_ui_idx.append(len(est_t) - 1)
+                est_ui.append(ui)
             if out.joint_state is not None and w_js is not None:
                 names, pos, vel, eff = out.joint_state
                 if enc_js is None:
@@ -873,10 +888,12 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
     x_est = np.vstack(run.est_x) if run.est_x else np.zeros((0, n))
     conv = np.vstack(run.est_conv) if run.est_conv else np.zeros((0, len(CONVERGENCE_FIELDS)))
     gt = float(obs.guaranteed_time)
-    if after is None:
-        settle, settle_rule = M.default_settle_time(gt)
-    else:
+    if after is not None:
         settle, settle_rule = float(after), "given (after= / --after)"
+    elif settings["metrics.settle_time"] > 0.0:
+        settle, settle_rule = settings["metrics.settle_time"], "params file (metrics.settle_time)"
+    else:
+        settle, settle_rule = M.default_settle_time(gt)
     t_start_ns = int(t_est_ns[0]) if t_est_ns.size else None
 
     truth_note = run.truth_note
@@ -913,6 +930,7 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
             err_norm = np.sqrt(np.sum(err * err, axis=1))
         elif truth_note is None:
             truth_note = "no estimate lies within the ground truth's time range"
+    ui_errors, ui_note, ui_plot = _unknown_input_errors(obs, run, t_est_ns, conv, settle)
     p50_obs, p99_obs = runner.update_time_us()
     duration_s = info.duration_ns / 1e9
     wall = run.timing["replay_total"]
@@ -940,7 +958,7 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
         "restarts_by_reason": dict(sorted(runner.resets.items())),
         "guaranteed_time_s": gt if math.isfinite(gt) else None,
         "guarantee": f"exact {gt:g} s after each (re)start" if math.isfinite(gt)
-        else "none (asymptotic)",
+        else "none",
         "settle_time_s": settle,
         "settle_time_rule": settle_rule,
         "tolerance": float(tolerance),
@@ -979,6 +997,11 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
             str(k): (v if isinstance(v, (int, float, str, bool)) or v is None else str(v))
             for k, v in obs.diagnostics().items()},
     }
+    if ui_plot is not None or "truth_ui" in run.roles:
+        # only for observers that identify an unknown input, or bags that carry its truth
+        metrics.update(
+            unknown_input_topic=run.truth_ui_topic if "truth_ui" in run.roles else None,
+            unknown_input_errors=ui_errors, unknown_input_errors_note=ui_note)
     t0 = info.start_ns
     plot_data = dict(
         t=(t_est_ns - t0) / 1e9, estimate=x_est, state_names=names,
@@ -986,4 +1009,49 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
         err_t=err_t, err_norm=err_norm, guaranteed_time=gt, settle_time=settle,
         tolerance=tolerance if truth_x is not None else None,
         t_start=0.0 if t_start_ns is None else (t_start_ns - t0) / 1e9)
+    if ui_plot is not None:
+        ui_t, ui_est, ui_truth_t, ui_truth, ui_names = ui_plot
+        plot_data.update(ui_t=(ui_t - t0) / 1e9, ui_estimate=ui_est,
+                         ui_truth_t=None if ui_truth_t is None else (ui_truth_t - t0) / 1e9,
+                         ui_truth=ui_truth, ui_names=ui_names)
     return metrics, plot_data
+
+
+def _unknown_input_errors(obs, run: _Run, t_est_ns: np.ndarray, conv: np.ndarray,
+                          settle: float) -> tuple[dict | None, str | None, tuple | None]:
+    """(errors like 'errors' but for the unknown input, a note, plot data) of a finished run."""
+    if not run.est_ui:
+        note = None if type(obs).unknown_input is Observer.unknown_input else \
+            "the observer published no unknown-input estimate"
+        return None, note, None
+    idx = np.asarray(run.est_ui_idx, dtype=np.int64)
+    ui = np.vstack(run.est_ui)
+    t_ui = t_est_ns[idx]
+    q = ui.shape[1]
+    names = list(getattr(obs, "unknown_input_names", None) or [f"zeta{j}" for j in range(q)])
+    truth_t = truth_x = None
+    note = run.truth_ui_note
+    if "truth_ui" in run.roles:
+        tt = run.streams.truth_ui[0]
+        lengths = {len(v) for v in run.streams.truth_ui[1]}
+        if not tt.size:
+            note = f"no unknown-input ground truth: topic {run.truth_ui_topic} has no messages"
+        elif lengths != {q}:
+            note = (f"no unknown-input error metrics: {run.truth_ui_topic} carries "
+                    f"{sorted(lengths)} value(s) per message, the estimate has {q}")
+        else:
+            truth_t, truth_x = tt, np.asarray(run.streams.truth_ui[1], dtype=float)
+    errors = None
+    if truth_x is not None:
+        mask, x_at = M.match_truth(t_ui, truth_t, truth_x)
+        if mask.any():
+            err = x_at[mask] - ui[mask]
+            settled = conv[idx[mask], 0] >= settle - 1e-9
+            errors = M.error_stats(err, names, settled)
+            errors.update(
+                matched_samples=int(mask.sum()), settled_samples=int(settled.sum()),
+                definition="error = true unknown input - unknown_input_estimate, matched and "
+                           "settled as 'errors'")
+        else:
+            note = "no unknown-input estimate lies within its ground truth's time range"
+    return errors, note, (t_ui, ui, truth_t, truth_x, names)

@@ -269,7 +269,7 @@ class Runner:
         if out is not None:
             values += [("time since start (s)", f"{out.convergence[0]:.4f}"),
                        ("guaranteed convergence time (s)",
-                        "none (asymptotic)" if math.isinf(out.convergence[3]) else f"{out.convergence[3]:.4g}"),
+                        "none" if math.isinf(out.convergence[3]) else f"{out.convergence[3]:.4g}"),
                        ("output residual", f"{out.convergence[1]:.4g}")]
         values += [("samples accepted", str(self.accepted)),
                    ("samples rejected", str(sum(self.rejected.values())))]

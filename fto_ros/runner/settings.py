@@ -31,6 +31,9 @@ SETTINGS: tuple[Param, ...] = (
     Param("topics.joint_states", "string", "joint_states", "JointState source topic (source: joint_states)"),
     Param("topics.true_state", "string", "true_state", "ground-truth Float64MultiArray topic "
           "(replay only: compared with the estimate)"),
+    Param("topics.true_unknown_input", "string", "true_unknown_input", "ground-truth unknown-input "
+          "Float64MultiArray topic (replay only: compared with unknown_input_estimate when the bag "
+          "has it)"),
     Param("joint_states.output_joints", "string_array", [], "joints whose field gives y, in order"),
     Param("joint_states.output_field", "string", "position", "JointState field giving y", choices=FIELDS),
     Param("joint_states.input_joints", "string_array", [], "joints whose field gives u, in order"),
@@ -60,6 +63,9 @@ SETTINGS: tuple[Param, ...] = (
     Param("diagnostics.expected_rate", "double", 0.0, "expected measurement rate (Hz) for the rate "
           "check; 0 disables it", min=0.0, read_only=False),
     Param("diagnostics.hardware_id", "string", "", "node only: hardware_id in /diagnostics"),
+    Param("metrics.settle_time", "double", 0.0, "replay only: errors are summarised from this "
+          "long (s) after each (re)start (0: the guaranteed time + 10 ms, or 0.11 s without "
+          "one; fto-replay --after overrides it)", min=0.0),
     Param("qos.depth", "int", 100, "node only: subscription queue depth (best effort, keep last)",
           min=1, max=100000),
 )
