@@ -1,6 +1,6 @@
 """Reproduce the numbers and figures of docs/global_norm.md (relative errors on the bags).
 
-    cd /work/main && PYTHONPATH=. OPENBLAS_NUM_THREADS=1 python docs/global_norm_figures.py
+    PYTHONPATH=. OPENBLAS_NUM_THREADS=1 python scripts/global_norm_figures.py
 
 Drives the registered observers (the same classes the node and fto-replay run) over
 bags/cubic_escape and bags/van_der_pol with the configs in config/, and computes the
