@@ -375,7 +375,8 @@ def test_bad_samples_rejected_state_untouched(example1):
         a.update(T1[k], x[k, :1], np.zeros(0))
         b.update(T1[k], x[k, :1], np.zeros(0))
     snap = (a.estimate.copy(), a.unknown_input.copy(), a.diffs[0].get_state()[0].copy())
-    bad = [(T1[300], np.array([np.nan]), "bad_output"), (T1[300], np.array([1.0, 2.0]), "bad_output"),
+    bad = [(T1[300], np.array([np.nan]), "measurement_non_finite"),
+           (T1[300], np.array([1.0, 2.0]), "measurement_wrong_length"),
            (T1[299], x[300, :1], "stamp_too_close"), (T1[299] + 1e-7, x[300, :1], "stamp_too_close"),
            (T1[300], x[300, :1], "non_finite_estimate")]
     good_Tinv1 = a.Tinv1

@@ -431,7 +431,7 @@ class GlobalNormObserver(Observer):
     def update(self, t, y, u):
         yk = float(y[0])
         if not math.isfinite(yk):
-            raise SampleRejected("non_finite_output")
+            raise SampleRejected("measurement_non_finite")
         if self._t is None:
             try:
                 gh, a, k, dk = self._vals(self._w)

@@ -106,7 +106,7 @@ class HighGainObserver(Observer):
     def update(self, t, y, u):
         yk = float(y[0])
         if not math.isfinite(yk):
-            raise SampleRejected("non_finite_output")
+            raise SampleRejected("measurement_non_finite")
         if self._t is None:
             self._t, self._y = t, yk
             self._residual = abs(yk - self._x[0])

@@ -305,10 +305,14 @@ class HosmObserver(Observer):
     def update(self, t, y, u):
         y = np.asarray(y, dtype=float)
         u = np.asarray(u, dtype=float)
-        if y.shape != self._yshape or not math.isfinite(y.sum()):
-            raise SampleRejected("bad_output")
-        if u.shape != self._ushape or (self.n_inputs and not math.isfinite(u.sum())):
-            raise SampleRejected("bad_input")
+        if y.shape != self._yshape:
+            raise SampleRejected("measurement_wrong_length")
+        if not math.isfinite(y.sum()):
+            raise SampleRejected("measurement_non_finite")
+        if u.shape != self._ushape:
+            raise SampleRejected("input_wrong_length")
+        if self.n_inputs and not math.isfinite(u.sum()):
+            raise SampleRejected("input_non_finite")
         if self._t is None:
             self._first(t, y, u)
             return

@@ -355,10 +355,14 @@ class NewtonInversionObserver(Observer):
     def update(self, t, y, u):
         y = np.asarray(y, dtype=float).reshape(-1)
         u = np.asarray(u, dtype=float).reshape(-1)
-        if y.size != 1 or not math.isfinite(y[0]):
-            raise SampleRejected("non_finite_measurement")
-        if u.size != self.n_inputs or not np.all(np.isfinite(u)):
-            raise SampleRejected("bad_input")
+        if y.size != 1:
+            raise SampleRejected("measurement_wrong_length")
+        if not math.isfinite(y[0]):
+            raise SampleRejected("measurement_non_finite")
+        if u.size != self.n_inputs:
+            raise SampleRejected("input_wrong_length")
+        if not np.all(np.isfinite(u)):
+            raise SampleRejected("input_non_finite")
         if self._t0 is None:
             self._start(float(t), y, u)
         else:
