@@ -191,16 +191,6 @@ class SymbolicModel:
             J[:, i] = np.broadcast_to(np.asarray(e, dtype=float), (k,))
         return J.reshape(k, n, n)
 
-    def ue_vector(self, u, derivatives=None) -> list[float]:
-        """The flat ue for input values u (m,) and derivatives (m, n) (zeros if None)."""
-        n = self.n
-        out = []
-        for j in range(self.m):
-            out.append(float(u[j]))
-            out.extend(float(derivatives[j][d]) if derivatives is not None else 0.0
-                       for d in range(n))
-        return out
-
     # -- start-up check ---------------------------------------------------------------------
     def check(self, x0, ue0, *, box: Sequence[float] = (), input_box: Sequence[float] = (),
               grid: int = 9, max_condition: float = 1e8, prefix: str = "") -> dict:

@@ -48,13 +48,6 @@ def zeta(t: float) -> np.ndarray:
     return np.array([math.cos(0.5 * t) + 0.5 * math.sin(t) + 0.5])
 
 
-def zeta_derivative(t: float, order: int) -> float:
-    """d^order zeta / dt^order (order >= 1), for error bounds in tests and docs."""
-    c = 0.5 ** order * math.cos(0.5 * t + order * math.pi / 2)
-    s = 0.5 * math.sin(t + order * math.pi / 2)
-    return c + s
-
-
 def example1_noise(t: float) -> np.ndarray:
     """The paper's deterministic output noise 0.1 sin(1037 |cos(687 t)|) (Section 6.1.1)."""
     return np.array([0.1 * math.sin(1037.0 * abs(math.cos(687.0 * t)))])

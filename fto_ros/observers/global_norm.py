@@ -532,10 +532,6 @@ class GlobalNormObserver(Observer):
         return [-v for v in k] if not self.reduced else list(k)
 
     @property
-    def saturation_active(self) -> bool:
-        return self._sat_active
-
-    @property
     def guaranteed_time(self):
         return float("inf")
 

@@ -505,11 +505,6 @@ class NewtonInversionObserver(Observer):
         return np.array(self._eta, dtype=float)
 
     @property
-    def eta_tilde_norm(self) -> float:
-        """|eta~| = |eta^(0,n-1) - O(x_hat, u_e)| before the last correction."""
-        return self._etilde
-
-    @property
     def inversion_active(self) -> bool:
         return self._active
 
