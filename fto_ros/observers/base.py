@@ -199,14 +199,17 @@ class Observer(abc.ABC):
         return None
 
     @property
-    @abc.abstractmethod
     def guaranteed_time(self) -> float:
-        """Time after reset from which the estimate is guaranteed (inf if none)."""
+        """Time after reset from which the estimate is guaranteed (inf: none, the default)."""
+        return math.inf
+
+    #: the output residual of the last update, kept by the observer (nan before one)
+    _residual: float = math.nan
 
     @property
-    @abc.abstractmethod
     def output_residual(self) -> float:
         """Norm of the one-step output prediction error at the last update."""
+        return self._residual
 
     @property
     def health(self) -> float:

@@ -532,14 +532,6 @@ class GlobalNormObserver(Observer):
         return [-v for v in k] if not self.reduced else list(k)
 
     @property
-    def guaranteed_time(self):
-        return float("inf")
-
-    @property
-    def output_residual(self):
-        return self._residual
-
-    @property
     def health(self):
         return float(self.gamma_hat)
 

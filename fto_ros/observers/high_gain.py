@@ -147,14 +147,6 @@ class HighGainObserver(Observer):
         return np.array(self._x, dtype=float)
 
     @property
-    def guaranteed_time(self):
-        return float("inf")
-
-    @property
-    def output_residual(self):
-        return self._residual
-
-    @property
     def health(self):
         return float(self.L)
 

@@ -404,10 +404,6 @@ class HosmObserver(Observer):
         return self._zeta
 
     @property
-    def guaranteed_time(self):
-        return float("inf")
-
-    @property
     def output_residual(self):
         if self._t is None:
             return float("nan")

@@ -123,14 +123,6 @@ class LuenbergerObserver(Observer):
         return self._x
 
     @property
-    def guaranteed_time(self):
-        return float("inf")
-
-    @property
-    def output_residual(self):
-        return self._residual
-
-    @property
     def health(self):
         return float(np.max(self.closed_loop_poles.real))
 

@@ -30,6 +30,10 @@ eta~+ = soft-threshold(eta~, tau), tau = h mu |eta~+|^alpha (a scalar root, no
 chattering, unconditionally stable, eta~ = 0 is an exact equilibrium), and mapped back
 to x_hat by one Newton step with J at the predicted point.  Transactional: the
 differentiators' states are snapshotted and restored when a sample is rejected.
+
+No guaranteed time is published (the base class's inf): Theorem 2 / Corollary 1 make the
+convergence time finite, but T* depends on constants (M, N, S) that are not computable
+from the model in general.
 """
 from __future__ import annotations
 
@@ -479,16 +483,6 @@ class NewtonInversionObserver(Observer):
     @property
     def estimate(self):
         return np.array(self._x, dtype=float)
-
-    @property
-    def guaranteed_time(self):
-        # Theorem 2 / Corollary 1: finite, but T* depends on constants (M, N, S) that are
-        # not computable from the model in general: no guarantee is published
-        return math.inf
-
-    @property
-    def output_residual(self):
-        return self._residual
 
     @property
     def health(self):

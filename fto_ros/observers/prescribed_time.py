@@ -709,10 +709,6 @@ class PrescribedTimeObserver(Observer):
         return self.T
 
     @property
-    def output_residual(self):
-        return self._residual
-
-    @property
     def health(self):
         return self._health
 

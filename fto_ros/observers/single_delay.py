@@ -503,10 +503,6 @@ class SingleDelayObserver(Observer):
         return self.tau
 
     @property
-    def output_residual(self):
-        return self._residual
-
-    @property
     def health(self):
         return self._health
 
