@@ -899,15 +899,9 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
     truth_note = run.truth_note
     truth_t = truth_x = None
     if "truth" in run.roles:
-        truth_t = streams.truth[0]
-        lengths = {len(v) for v in streams.truth[1]}
-        if not truth_t.size:
-            truth_note = f"no ground truth: topic {run.truth_topic} has no messages"
-        elif lengths != {n}:
-            truth_note = (f"no error metrics: {run.truth_topic} carries {sorted(lengths)} "
-                          f"value(s) per message, the observer has {n} states")
-        else:
-            truth_x = np.asarray(streams.truth[1], dtype=float)
+        truth_t, truth_x, why = _truth_rows(streams.truth, run.truth_topic, n, "",
+                                            f"the observer has {n} states")
+        truth_note = why or truth_note
     errors = conv_time = err_t = err_norm = None
     if truth_x is not None and not t_est_ns.size:
         truth_note = "no accepted samples: nothing to compare with the ground truth"
@@ -1017,6 +1011,19 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
     return metrics, plot_data
 
 
+def _truth_rows(stream, topic: str, width: int, kind: str, has: str):
+    """(stamps, rows, None) of a ground-truth stream whose messages all carry ``width``
+    values, or (None, None, why there are no error metrics)."""
+    t, rows = stream
+    lengths = {len(v) for v in rows}
+    if not t.size:
+        return None, None, f"no {kind}ground truth: topic {topic} has no messages"
+    if lengths != {width}:
+        return None, None, (f"no {kind}error metrics: {topic} carries {sorted(lengths)} value(s) "
+                            f"per message, {has}")
+    return t, np.asarray(rows, dtype=float), None
+
+
 def _unknown_input_errors(obs, run: _Run, t_est_ns: np.ndarray, conv: np.ndarray,
                           settle: float) -> tuple[dict | None, str | None, tuple | None]:
     """(errors like 'errors' but for the unknown input, a note, plot data) of a finished run."""
@@ -1032,15 +1039,9 @@ def _unknown_input_errors(obs, run: _Run, t_est_ns: np.ndarray, conv: np.ndarray
     truth_t = truth_x = None
     note = run.truth_ui_note
     if "truth_ui" in run.roles:
-        tt = run.streams.truth_ui[0]
-        lengths = {len(v) for v in run.streams.truth_ui[1]}
-        if not tt.size:
-            note = f"no unknown-input ground truth: topic {run.truth_ui_topic} has no messages"
-        elif lengths != {q}:
-            note = (f"no unknown-input error metrics: {run.truth_ui_topic} carries "
-                    f"{sorted(lengths)} value(s) per message, the estimate has {q}")
-        else:
-            truth_t, truth_x = tt, np.asarray(run.streams.truth_ui[1], dtype=float)
+        truth_t, truth_x, why = _truth_rows(run.streams.truth_ui, run.truth_ui_topic, q,
+                                            "unknown-input ", f"the estimate has {q}")
+        note = why or note
     errors = None
     if truth_x is not None:
         mask, x_at = M.match_truth(t_ui, truth_t, truth_x)
