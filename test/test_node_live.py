@@ -649,6 +649,26 @@ def test_player_missing_bag_exits_1(tmp_path):
     assert "fto-play: error:" in res.stderr and "nope" in res.stderr and "Traceback" not in res.stderr
 
 
+def _play(bag: Path, truth: dict, domain: int, tmp: Path, node: NodeProcess, driver: Driver):
+    """fto-play --clock the bag's input and measured output into the node on sim time and wait
+    for its last estimates.  Returns (the last status, the estimates {stamp ns: (q, q_dot, I)},
+    |estimate - truth| at the bag's sample times from 0.5 s on)."""
+    player = subprocess.run(
+        [sys.executable, "-m", "fto_ros.nodes.player", str(bag), "--clock", "--quiet",
+         "--wait-for-subscribers", "20", "--delay", "0.5",
+         "--topics", "/dc_motor/input", "/dc_motor/measured_output"],
+        cwd=ROOT, env=_ros_env(domain, tmp), capture_output=True, text=True, timeout=60)
+    assert player.returncode == 0, player.stderr
+    last = max(truth)
+    driver.wait_for(lambda: driver.has_estimate_after(last - 50 * 10**6), 15,
+                    "the estimates of the last samples", node)
+    st = driver.status_where(lambda s: True, 10, "a status", node)
+    est = dict(driver.got("estimated_joint_states"))
+    errs = np.array([np.abs(x - truth[ns]) for ns, x in est.items() if ns >= 0.5e9 and ns in truth])
+    assert len(errs) > 0.5 * len(truth), f"only {len(errs)} estimates at the bag's sample times"
+    return st, est, errs
+
+
 @pytest.mark.slow
 def test_player_drives_node_with_sim_time(tmp_path):
     """fto-play --clock of a simulated bag into a node with use_sim_time: estimates match the
@@ -668,19 +688,7 @@ def test_player_drives_node_with_sim_time(tmp_path):
         driver.wait_for(lambda: driver.node.count_publishers(NODE + "/estimated_joint_states") > 0, 30,
                         "the node's publishers", node)
         driver.wait_for(driver.last_status, 30, "the first /diagnostics", node)
-        player = subprocess.run(
-            [sys.executable, "-m", "fto_ros.nodes.player", str(bag), "--clock", "--quiet",
-             "--wait-for-subscribers", "20", "--delay", "0.5",
-             "--topics", "/dc_motor/input", "/dc_motor/measured_output"],
-            cwd=ROOT, env=_ros_env(domain, tmp_path), capture_output=True, text=True, timeout=60)
-        assert player.returncode == 0, player.stderr
-        last = max(truth)
-        driver.wait_for(lambda: driver.has_estimate_after(last - 50 * 10**6), 15,
-                        "the estimates of the last samples", node)
-        st = driver.status_where(lambda s: True, 10, "a status", node)
-        est = dict(driver.got("estimated_joint_states"))
-        errs = np.array([np.abs(x - truth[ns]) for ns, x in est.items() if ns >= 0.5e9 and ns in truth])
-        assert len(errs) > 0.5 * len(truth), f"only {len(errs)} estimates at the bag's sample times"
+        st, est, errs = _play(bag, truth, domain, tmp_path, node, driver)
         med = np.median(errs, axis=0)
         print(f"fto-play: {len(errs)} estimates after 0.5 s, median |error| {med}, max {errs.max(axis=0)}; "
               f"accepted {st['values']['samples accepted']}, rejected {st['values']['samples rejected']}")
@@ -718,19 +726,7 @@ def test_hosm_publishes_the_load_torque_live(tmp_path):
         driver.wait_for(lambda: driver.node.count_publishers(NODE + "/unknown_input_estimate") > 0,
                         30, "the unknown-input publisher", node)
         driver.wait_for(driver.last_status, 30, "the first /diagnostics", node)
-        player = subprocess.run(
-            [sys.executable, "-m", "fto_ros.nodes.player", str(bag), "--clock", "--quiet",
-             "--wait-for-subscribers", "20", "--delay", "0.5",
-             "--topics", "/dc_motor/input", "/dc_motor/measured_output"],
-            cwd=ROOT, env=_ros_env(domain, tmp_path), capture_output=True, text=True, timeout=60)
-        assert player.returncode == 0, player.stderr
-        last = max(truth)
-        driver.wait_for(lambda: driver.has_estimate_after(last - 50 * 10**6), 15,
-                        "the estimates of the last samples", node)
-        st = driver.status_where(lambda s: True, 10, "a status", node)
-        est = dict(driver.got("estimated_joint_states"))
-        errs = np.array([np.abs(x - truth[ns]) for ns, x in est.items() if ns >= 0.5e9 and ns in truth])
-        assert len(errs) > 0.5 * len(truth), f"only {len(errs)} estimates at the bag's sample times"
+        st, _, errs = _play(bag, truth, domain, tmp_path, node, driver)
         # replay of the same bag: 6.2e-6 rad/s, 9.0e-7 A after 0.11 s
         assert np.all(np.median(errs, axis=0) < [1e-6, 1e-4, 1e-4]), np.median(errs, axis=0)
         assert len(ui) > 0.9 * len(truth) and all(len(v) == 1 and math.isfinite(v[0]) for v in ui)
