@@ -112,9 +112,7 @@ class VectorFunction:
         self.exprs = [parse(t, allowed, f"{parameter}[{i}]") for i, t in enumerate(texts)]
         self.is_zero = all(e == 0 for e in self.exprs)
         self.parameter = parameter
-        fn = sympy.lambdify((self.y_syms, self.u_syms), tuple(self.exprs) if self.exprs else (),
-                            modules="math", cse=True)
-        self._fn: Callable = fn
+        self._fn: Callable = compile_exprs(self.exprs, (self.y_syms, self.u_syms))
 
     def __len__(self) -> int:
         return len(self.exprs)
@@ -164,6 +162,9 @@ class NamedFunction:
             return (float("nan"),) * len(self.exprs)
 
 
-def compile_exprs(exprs: Sequence[sympy.Expr], syms: Sequence[sympy.Symbol]) -> Callable:
-    """``fn(*values) -> tuple`` of the sympy ``exprs`` over ``syms`` (lambdify, math, cse)."""
-    return sympy.lambdify(list(syms), tuple(exprs), modules="math", cse=True)
+def compile_exprs(exprs: Sequence[sympy.Expr], args: Sequence) -> Callable:
+    """``fn(*values) -> tuple`` of the sympy ``exprs`` over ``args`` (lambdify, math, cse).
+
+    ``args`` are symbols, or groups (lists) of symbols passed as one sequence each, as in
+    ``fn(y, u)``."""
+    return sympy.lambdify(list(args), tuple(exprs), modules="math", cse=True)

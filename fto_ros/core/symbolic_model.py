@@ -35,7 +35,7 @@ import numpy as np
 import sympy
 
 from .errors import ConfigError
-from .expressions import FUNCTIONS, parse
+from .expressions import FUNCTIONS, compile_exprs, parse
 
 _NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 #: names a user may not take (sympy's parser needs them, or they are functions/constants)
@@ -150,8 +150,8 @@ class SymbolicModel:
 
         # -- compilation ------------------------------------------------------------------
         flat = tuple(self.O) + tuple(x for r in self.J for x in r) + tuple(self.G)
-        self._all = sympy.lambdify((self.x, self.ue), flat, modules="math", cse=True)
-        self._obs = sympy.lambdify((self.x, self.ue), tuple(self.O), modules="math", cse=True)
+        self._all = compile_exprs(flat, (self.x, self.ue))
+        self._obs = compile_exprs(self.O, (self.x, self.ue))
         self._jac_np = sympy.lambdify((self.x, self.ue), [x for r in self.J for x in r],
                                       modules="numpy", cse=True)
 
