@@ -33,6 +33,7 @@ import pytest
 import yaml
 
 from fto_ros.bag import BagReader, BagWriter
+from fto_ros.core.errors import ConfigError
 from fto_ros.models import dc_motor, simulate
 from fto_ros.models.simulate import uniform_grid
 from fto_ros.replay import ReplayError, replay
@@ -50,7 +51,8 @@ RATE = 1000.0
 DURATION = 2.0
 
 METRIC_FIELDS = {
-    "schema", "bag", "params_file", "node_name", "observer_type", "state_names", "source",
+    "schema", "bag", "params_file", "params_files", "overrides", "node_name", "observer_type",
+    "state_names", "source",
     "input_topics", "output_bag", "output_topics", "plot", "bag_start_s", "bag_duration_s",
     "sample_count", "input_count", "samples_accepted", "samples_rejected", "rejected_by_reason",
     "restarts", "restarts_by_reason", "guaranteed_time_s", "guarantee", "settle_time_s",
@@ -311,7 +313,13 @@ def test_joint_states_source_gives_the_same_estimates(bag, run, tmp_path):
 
 
 def test_node_name_sets_the_output_namespace(bag, tmp_path):
-    m = replay(bag, LUENBERGER, tmp_path / "out", node_name="/robot/motor_observer",
+    # the config's block is for /observer_node: as ROS does, another node gets nothing from it
+    with pytest.raises(ConfigError, match="none is for node '/robot/motor_observer'"):
+        replay(bag, LUENBERGER, tmp_path / "refused", node_name="/robot/motor_observer",
+               progress=False, plot=False)
+    params = tmp_path / "renamed.yaml"
+    params.write_text(Path(LUENBERGER).read_text().replace("observer_node:", "/robot/motor_observer:"))
+    m = replay(bag, params, tmp_path / "out", node_name="/robot/motor_observer",
                progress=False, plot=False)
     assert m["node_name"] == "/robot/motor_observer"
     with BagReader(tmp_path / "out") as b:

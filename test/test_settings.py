@@ -99,10 +99,60 @@ def test_block_wildcard(tmp_path):
     assert load_params_file(p) == {"which": "wildcard"}
 
 
-def test_single_block_whatever_its_name(tmp_path):
+def test_a_block_for_another_node_is_refused_as_ros_ignores_it(tmp_path):
+    # rcl applies a block only to the node it names: a file whose one block names another
+    # node gives that node nothing, so the replay and the node refuse it alike
     p = write(tmp_path, "my_node:\n  ros__parameters:\n    a: {b: 1, c: [1, 2]}\n")
-    assert load_params_file(p) == {"a.b": 1, "a.c": [1, 2]}
-    assert load_params_file(p, "not_my_node") == {"a.b": 1, "a.c": [1, 2]}
+    assert load_params_file(p, "my_node") == {"a.b": 1, "a.c": [1, 2]}
+    refused(lambda: load_params_file(p), "params file", "my_node", "/observer_node")
+    refused(lambda: load_params_file(p, "not_my_node"), "params file", "not_my_node")
+
+
+def test_any_namespace_wildcard(tmp_path):
+    p = write(tmp_path, "/**/observer_node:\n  ros__parameters: {x: 1}\n"
+                        "/**:\n  ros__parameters: {x: 0, y: 2}\n")
+    assert load_params_file(p) == {"x": 1, "y": 2}
+    assert load_params_file(p, "/robot/observer_node") == {"x": 1, "y": 2}
+    assert load_params_file(p, "/robot/other") == {"x": 0, "y": 2}
+
+
+def test_several_files_merge_in_order_then_overrides(tmp_path):
+    a = write(tmp_path, "observer_node:\n  ros__parameters: {p: {x: 1, y: [1.0, 2.0]}}\n", "a.yaml")
+    b = write(tmp_path, "observer_node:\n  ros__parameters: {p: {y: [3.0]}, q: s}\n", "b.yaml")
+    assert S.load_params_files([a, b]) == {"p.x": 1, "p.y": [3.0], "q": "s"}
+    assert S.load_params_files([b, a]) == {"p.x": 1, "p.y": [1.0, 2.0], "q": "s"}
+    assert S.load_params_files([a, b], overrides={"p.x": 5}) == {"p.x": 5, "p.y": [3.0], "q": "s"}
+    refused(lambda: S.load_params_files([]), "params file")
+
+
+@pytest.mark.parametrize("text,expected", [
+    ("single_delay.tau=0.05", ("single_delay.tau", 0.05)),
+    ("a.b:=[1.0, 2.0]", ("a.b", [1.0, 2.0])),
+    ("x=true", ("x", True)),
+    ("s=hello", ("s", "hello")),
+])
+def test_parse_override(text, expected):
+    from fto_ros.runner.params_file import parse_override
+    assert parse_override(text) == expected
+
+
+@pytest.mark.parametrize("text", ["novalue", "=3", "a=[1, 2.0]", "a={b: 1}", "a=[1"])
+def test_parse_override_refused(text):
+    from fto_ros.runner.params_file import parse_override
+    with pytest.raises(ConfigError):
+        parse_override(text)
+
+
+def test_yaml_aliases_deep_nesting_and_mixed_lists_are_refused(tmp_path):
+    bomb = ("a: &a [1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0]\n"
+            + "".join(f"{c}: &{c} [*{p}, *{p}, *{p}, *{p}, *{p}, *{p}, *{p}, *{p}, *{p}]\n"
+                      for p, c in zip("abcdefgh", "bcdefghi"))
+            + "observer_node:\n  ros__parameters:\n    luenberger: {A: *i}\n")
+    refused(lambda: load_params_file(write(tmp_path, bomb, "bomb.yaml")), "params file", "aliases")
+    deep = "observer_node:\n  ros__parameters:\n    a: " + "[" * 10000 + "]" * 10000 + "\n"
+    refused(lambda: load_params_file(write(tmp_path, deep, "deep.yaml")), "params file", "deeper")
+    mixed = "observer_node:\n  ros__parameters:\n    luenberger: {A: [1, 2.0]}\n"
+    refused(lambda: load_params_file(write(tmp_path, mixed, "mixed.yaml")), "luenberger.A", "decimal")
 
 
 def test_several_blocks_none_matching(tmp_path):

@@ -45,7 +45,6 @@ from typing import Any
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
-import yaml
 
 import rclpy
 import rclpy.logging
@@ -73,6 +72,7 @@ from ..observers import REGISTRY, observer_class
 from ..observers.base import Observer, Param
 from ..runner.messages import joint_state_sample
 from ..runner.runner import CONVERGENCE_FIELDS, Runner
+from ..runner.params_file import load_params_file
 from ..runner.settings import ROS_BUILTIN, SETTINGS
 
 NODE_NAME = "observer_node"
@@ -640,22 +640,22 @@ def _usage() -> str:
     return USAGE.format(fields=", ".join(CONVERGENCE_FIELDS), types=types, params="\n".join(lines))
 
 
-def _check_list_types(tree: Any, prefix: str = "") -> None:
-    """rcl refuses lists mixing 1 and 1.0 with an opaque error: say which parameter."""
-    if isinstance(tree, dict):
-        for k, v in tree.items():
-            _check_list_types(v, f"{prefix}{k}." if k != "ros__parameters" else "")
-        return
-    if isinstance(tree, list):
-        kinds = {type(v) for v in tree}
-        if kinds == {int, float}:
-            raise ConfigError(prefix.rstrip("."), f"the list {tree} mixes integers and decimals, "
-                              "which ROS 2 params files refuse; write every number with a decimal "
-                              "point (e.g. 1.0)")
+def _node_fqn(args: list[str]) -> str:
+    """The node's fully qualified name after ``-r __node:=N`` / ``-r __ns:=NS`` remaps."""
+    name, ns = NODE_NAME, ""
+    for i, a in enumerate(args[:-1]):
+        if a in ("-r", "--remap"):
+            key, _, value = args[i + 1].partition(":=")
+            if key == "__node" and value:
+                name = value
+            elif key == "__ns" and value:
+                ns = value.strip("/")
+    return f"{ns}/{name}" if ns else name
 
 
 def _precheck_params_files(args: list[str]) -> None:
-    """Check --params-file arguments before rcl parses them (its errors are opaque)."""
+    """Check --params-file arguments before rcl parses them (its errors are opaque), with the
+    reader of the replay tools: both refuse the same files with the same line."""
     in_ros = False
     for i, a in enumerate(args):
         if a == "--ros-args":
@@ -663,18 +663,7 @@ def _precheck_params_files(args: list[str]) -> None:
         elif a == "--":
             in_ros = False
         elif in_ros and a == "--params-file" and i + 1 < len(args):
-            path = args[i + 1]
-            try:
-                with open(path) as f:
-                    doc = yaml.safe_load(f)
-            except OSError as exc:
-                raise ConfigError("params file", f"cannot read {path}: {exc.strerror}") from None
-            except yaml.YAMLError as exc:
-                raise ConfigError("params file", f"{path} is not valid YAML: "
-                                  + " ".join(str(exc).split())) from None
-            if not isinstance(doc, dict):
-                raise ConfigError("params file", f"{path} must map a node name to 'ros__parameters'")
-            _check_list_types(doc)
+            load_params_file(args[i + 1], _node_fqn(args))
 
 
 def _error_line(node_name: str, text: str) -> None:

@@ -25,8 +25,14 @@ def build_parser() -> argparse.ArgumentParser:
                     "convergence, diagnostics, the bag's ground truth) plus OUT/metrics.json and "
                     "OUT/replay.png.")
     p.add_argument("bag", metavar="BAG", help="input bag (rosbag2 directory or .mcap file)")
-    p.add_argument("--params", required=True, metavar="FILE",
-                   help="ROS 2 params file of the observer node (e.g. config/dc_motor_luenberger.yaml)")
+    p.add_argument("--params", required=True, metavar="FILE", action="append",
+                   help="ROS 2 params file of the observer node (e.g. config/dc_motor_luenberger.yaml); "
+                        "give it several times to merge files in order, later ones overriding "
+                        "earlier ones (a plant file, then a tuning file), as ROS 2 merges "
+                        "several --params-file")
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="override one parameter after the files (the value is read as YAML, as "
+                        "ROS reads -p NAME:=VALUE), e.g. --set single_delay.tau=0.05")
     p.add_argument("--out", required=True, metavar="OUT", help="output bag directory")
     p.add_argument("--node-name", default=None, metavar="N",
                    help=f"node name: selects the params block and the output namespace "
@@ -96,9 +102,11 @@ def main(argv=None) -> int:
         from ..bag import BagError
         from ..core.errors import ConfigError
         from .replay import ReplayError, replay
+        from ..runner.params_file import parse_override
+        overrides = dict(parse_override(text) for text in args.set)
         metrics = replay(args.bag, args.params, args.out, node_name=args.node_name,
                          overwrite=args.overwrite, progress=not args.no_progress,
-                         after=args.after, tolerance=args.tolerance)
+                         after=args.after, tolerance=args.tolerance, overrides=overrides)
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted", file=sys.stderr)
         return 130

@@ -56,7 +56,7 @@ from ..bag.reader import jazzy_typestore
 from ..observers.base import Observer
 from ..runner.messages import joint_state_sample
 from ..runner.runner import CONVERGENCE_FIELDS, LEVEL_NAMES, Runner
-from ..runner.settings import load_params_file
+from ..runner.params_file import load_params_files
 from . import metrics as M
 
 F64_ARRAY = "std_msgs/msg/Float64MultiArray"
@@ -815,13 +815,15 @@ def _run(runner: Runner, bag_path: Path, out_dir: Path, fqn: str, overwrite: boo
 
 def replay(bag_path, params_path, out_dir, *, node_name: str | None = None,
            overwrite: bool = False, progress: bool = True, after: float | None = None,
-           tolerance: float = DEFAULT_TOLERANCE, plot: bool = True) -> dict[str, Any]:
+           tolerance: float = DEFAULT_TOLERANCE, plot: bool = True,
+           overrides: dict[str, Any] | None = None) -> dict[str, Any]:
     """Replay ``bag_path`` through the observer of ``params_path``; write ``out_dir``.
 
     Args:
         bag_path: rosbag2 bag (directory or .mcap file).
-        params_path: ROS 2 params file; the block of ``node_name`` (or ``/**``,
-            or the only block) is used.
+        params_path: ROS 2 params file, or a list of them merged in order (later
+            files override earlier ones, as several ``--params-file`` do); the
+            blocks for ``node_name`` (and ``/**``) are used.
         out_dir: output bag directory; also receives ``metrics.json`` and
             ``replay.png``.  Must not exist unless ``overwrite``.
         node_name: node name for the params block and the output topic
@@ -833,6 +835,8 @@ def replay(bag_path, params_path, out_dir, *, node_name: str | None = None,
             0.11 s for observers without a guarantee.
         tolerance: error bound (state units) for the measured convergence time.
         plot: write ``replay.png``.
+        overrides: ``{full parameter name: value}`` applied after the files
+            (``-p NAME:=VALUE``; ``fto-sweep --set``).
 
     Returns the metrics (also written to ``metrics.json``).
     Raises ConfigError (params), BagError (bags, existing output), ReplayError
@@ -844,14 +848,18 @@ def replay(bag_path, params_path, out_dir, *, node_name: str | None = None,
     if after is not None and not (isinstance(after, (int, float)) and math.isfinite(after)
                                   and after >= 0):
         raise ReplayError(f"after must be a finite number >= 0, got {after!r}")
-    bag_path, params_path, out_dir = Path(bag_path), Path(params_path), Path(out_dir)
+    params_paths = ([Path(p) for p in params_path] if isinstance(params_path, (list, tuple))
+                    else [Path(params_path)])
+    bag_path, out_dir = Path(bag_path), Path(out_dir)
+    params_path = params_paths[-1]          # the tuning file, in titles and names
     fqn = node_fqn(node_name)
-    runner = Runner(load_params_file(params_path, node_name))
+    runner = Runner(load_params_files(params_paths, node_name, overrides))
     jazzy_typestore()  # one-time library set-up (~50 ms on first use), not part of the replay
     obs = runner.observer
     if (out_dir.exists() or out_dir.is_symlink()) and not overwrite:
         raise BagError(f"{out_dir}: output exists already (remove it or pass --overwrite)")
-    custom = {"fto_ros.replay.bag": str(bag_path), "fto_ros.replay.params": str(params_path),
+    custom = {"fto_ros.replay.bag": str(bag_path),
+              "fto_ros.replay.params": ", ".join(str(p) for p in params_paths),
               "fto_ros.replay.observer": obs.TYPE}
     # the replay allocates many small objects and frees none: the cyclic GC would only
     # rescan them again and again (it cost up to 2x in the read phase)
@@ -865,6 +873,8 @@ def replay(bag_path, params_path, out_dir, *, node_name: str | None = None,
     m0 = time.perf_counter()
     metrics, plot_data = _metrics(runner, run, bag_path, params_path, out_dir, fqn, after,
                                   tolerance)
+    metrics["params_files"] = [str(p) for p in params_paths]
+    metrics["overrides"] = dict(overrides or {})
     metrics["timing_s"]["metrics"] = time.perf_counter() - m0
     if plot:
         p0 = time.perf_counter()

@@ -7,14 +7,12 @@ both and a typo is refused the same way by both.  ROS-free.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 from typing import Any, Mapping
-
-import yaml
 
 from ..core.errors import ConfigError
 from ..observers import REGISTRY, observer_class
 from ..observers.base import Param, resolve
+from .params_file import flatten, load_params_file, load_params_files  # noqa: F401  (re-exported)
 
 FIELDS = ("position", "velocity", "effort")
 
@@ -72,55 +70,6 @@ SETTINGS: tuple[Param, ...] = (
 
 #: ROS's own parameters that may appear in a params file
 ROS_BUILTIN = ("use_sim_time", "start_type_description_service")
-
-
-def load_params_file(path: str | Path, node_name: str | None = None) -> dict[str, Any]:
-    """The flat ``{dotted.name: value}`` parameters of one node block of a ROS 2 params file.
-
-    As ROS does, the ``/**`` block applies to every node and the block named
-    ``node_name`` (with or without leading ``/``; default: the file's only
-    other block) overrides it.  ConfigError for a missing or malformed file.
-    """
-    p = Path(path)
-    if not p.is_file():
-        raise ConfigError("params file", f"{p} does not exist or is not a file")
-    try:
-        doc = yaml.safe_load(p.read_text())
-    except yaml.YAMLError as exc:
-        raise ConfigError("params file", f"{p} is not valid YAML: {exc}") from None
-    if not isinstance(doc, dict) or not doc:
-        raise ConfigError("params file", f"{p} must map a node name to 'ros__parameters'")
-    blocks = {str(k).lstrip("/"): v for k, v in doc.items()}
-    for name, block in blocks.items():
-        if not isinstance(block, dict) or not isinstance(block.get("ros__parameters"), dict):
-            raise ConfigError("params file", f"{p}: the block '{name}' needs a 'ros__parameters' mapping")
-    wanted = node_name.lstrip("/") if node_name else None
-    others = [b for b in blocks if b != "**"]
-    if wanted in blocks:
-        own = wanted
-    elif len(others) == 1 and (wanted is None or "**" not in blocks):
-        own = others[0]       # a file with one node block is meant for this node
-    elif "**" in blocks:
-        own = None            # only the wildcard block applies
-    else:
-        raise ConfigError("params file", f"{p} has blocks {sorted(blocks)}; none is for node {wanted!r}")
-    # as ROS does: the wildcard block first, the node's own block overrides it
-    flat = flatten(blocks["**"]["ros__parameters"]) if "**" in blocks else {}
-    if own is not None and own != "**":
-        flat.update(flatten(blocks[own]["ros__parameters"]))
-    return flat
-
-
-def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
-    """``{'a': {'b': 1}}`` -> ``{'a.b': 1}`` (ROS 2's nested parameter names)."""
-    out: dict[str, Any] = {}
-    for key, value in tree.items():
-        name = f"{prefix}{key}"
-        if isinstance(value, dict):
-            out.update(flatten(value, name + "."))
-        else:
-            out[name] = value
-    return out
 
 
 def split(flat: Mapping[str, Any]) -> tuple[dict[str, Any], type, dict[str, Any]]:
