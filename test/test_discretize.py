@@ -170,7 +170,7 @@ def test_cache_is_bounded_and_evicts():
     for h in (1e-3, 2e-3, 3e-3, 4e-3):
         st.stacked(h)
     assert st.misses == 4
-    assert len(st._cache) == 3
+    assert len(st.stacked) == 3
     st.stacked(4e-3)
     assert st.misses == 4              # the newest is kept
     st.stacked(1e-3)

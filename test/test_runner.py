@@ -20,6 +20,7 @@ from fto_ros.core.errors import ConfigError
 from fto_ros.models import dc_motor
 from fto_ros.models.simulate import simulate, uniform_grid
 from fto_ros.runner import CONVERGENCE_FIELDS, ERROR, OK, WARN, Output, Runner, load_params_file
+from fto_ros.runner.runner import HELD
 
 ROOT = Path(__file__).resolve().parents[1]
 # the pole-placement Luenberger: its poles make the runner tests' expectations exact
@@ -89,8 +90,11 @@ def stream_for(name, uniform, sparse):
     return sparse if name == "single_delay_sampled" else uniform
 
 
-def drive(r: Runner, s: Stream, lo: int = 0, hi: int | None = None) -> dict[int, Output]:
-    """Feed measurements lo..hi-1 (and the inputs between them): {measurement index: Output}."""
+def drive(r: Runner, s: Stream, lo: int = 0, hi: int | None = None,
+          held_first: bool = False) -> dict[int, Output]:
+    """Feed measurements lo..hi-1 (and the inputs between them): {measurement index: Output}.
+    ``held_first``: measurement lo is after a time discontinuity, held until the next
+    confirms it (no Output for it)."""
     hi = len(s.t) if hi is None else hi
     start = 0 if lo == 0 else s.after[lo - 1]
     end = s.after[hi - 1]             # the inputs after measurement hi-1 belong to the next call
@@ -100,6 +104,9 @@ def drive(r: Runner, s: Stream, lo: int = 0, hi: int | None = None) -> dict[int,
             assert r.set_input(t, s.u[i]) is None
         else:
             out = r.process(t, s.y[i])
+            if held_first and i == lo:
+                assert out == HELD, f"sample {i} at {t}: {out}"
+                continue
             assert isinstance(out, Output), f"sample {i} at {t}: {out}"
             outs[i] = out
     return outs
@@ -241,7 +248,12 @@ REJECTIONS = {
     "input_stamp_nan": (bad_input_stamp, "input_bad_stamp"),
     "repeated_stamp": (repeated, "repeated_stamp"),
     "backwards_small": (backwards(0.0003), "stamp_backwards"),
-    "backwards_under_threshold": (backwards(0.4), "stamp_backwards"),
+    "backwards_under_threshold": (backwards(0.14), "stamp_backwards"),
+    "measurement_stamp_negative": (bad_stamp(-1.0), "bad_stamp"),
+    "measurement_stamp_beyond_int32": (bad_stamp(2.0 ** 31), "bad_stamp"),
+    "measurement_implausible": (bad_measurement([1e300]), "measurement_implausible"),
+    "input_implausible": (bad_input([-1e300]), "input_implausible"),
+    "input_stamp_negative": (bad_input([1.0], dt=-5.0), "input_bad_stamp"),
 }
 
 
@@ -255,7 +267,7 @@ def test_rejection_leaves_no_trace(name, case, uniform, sparse):
     r = make(name)
     drive(r, s, 0, k)
     before = np.array(r.observer.estimate, copy=True)
-    t_obs = getattr(r.observer, "_t", None)
+    t_obs = getattr(r.observer, "_s", None)
     got = inject(r, s, k)
     assert got == reason
     assert r.rejected == {reason: 1}
@@ -263,7 +275,7 @@ def test_rejection_leaves_no_trace(name, case, uniform, sparse):
     assert r.accepted == k
     assert not r.resets
     np.testing.assert_array_equal(r.observer.estimate, before)
-    assert getattr(r.observer, "_t", None) == t_obs          # a rejected input does not advance
+    assert getattr(r.observer, "_s", None) == t_obs          # a rejected input does not advance
     after = drive(r, s, k, k + 120)
     for i, out in after.items():
         same_output(out, ref[i])
@@ -294,7 +306,7 @@ def test_rejected_input_keeps_the_previous_input(name, bad, uniform, sparse):
     y_extra = s.y[k - 1] + 1e-4
     runs = []
     for with_bad in (True, False):
-        r = make(name)
+        r = make(name, outlier__threshold=0.0)     # y_extra is an outlier of the smooth stream
         drive(r, s, 0, k)
         if with_bad:
             if bad == "stamp":
@@ -365,11 +377,12 @@ def test_time_jump_restarts_like_a_fresh_run(name, uniform, sparse):
     k = int(np.searchsorted(s.t, 0.55))              # t[k-1] - t[0] > jump_threshold (0.5)
     drive(r, s, 0, k)
     assert s.t[k - 1] - s.t[0] > 0.5
-    # the bag loops: the same stream again from its start
-    after = drive(r, s, 0, 200)
+    # the bag loops: the same stream again from its start; its first sample is held until
+    # the second confirms the jump, then the new run starts on it
+    after = drive(r, s, 0, 200, held_first=True)
     assert r.resets == {"time_jump": 1}
     assert not r.rejected
-    assert after[0].convergence[0] == 0.0
+    assert after[1].convergence[0] == pytest.approx(s.t[1] - s.t[0], abs=1e-12)
     for i, out in after.items():
         same_output(out, ref[i])
 
@@ -394,13 +407,18 @@ def test_jump_threshold_is_respected(name, uniform):
     r = make(name, time__jump_threshold=0.05)
     drive(r, uniform, 0, 200)
     assert r.process(uniform.t[199] - 0.04, uniform.y[0]) == "stamp_backwards"
-    # a jump restarts; the held input is stamped after the jump target (old timeline),
-    # so the first sample waits for an input of the new timeline
+    # a jump is held until the next sample confirms it; the current input is stamped after
+    # the jump target (old timeline), so the held sample cannot start the new run and the
+    # first one that can waits for an input of the new timeline
     t_new = uniform.t[199] - 0.06
-    assert r.process(t_new, uniform.y[0]) == "missing_input"
+    assert r.process(t_new, uniform.y[0]) == HELD
+    assert not r.resets
+    assert r.process(t_new + 1e-3, uniform.y[0]) == "missing_input"
     assert r.resets == {"time_jump": 1}
-    assert r.set_input(t_new, uniform.u[0]) is None
-    out = r.process(t_new, uniform.y[0])
+    # the small jump back, then the held sample and this one
+    assert r.rejected == {"stamp_backwards": 1, "missing_input": 2}
+    assert r.set_input(t_new + 2e-3, uniform.u[0]) is None
+    out = r.process(t_new + 2e-3, uniform.y[0])
     assert isinstance(out, Output) and out.convergence[0] == 0.0
     assert r.resets == {"time_jump": 1}
 
@@ -412,12 +430,12 @@ def test_gap_restarts_like_a_fresh_run(name, uniform, sparse):
     k1 = int(np.searchsorted(s.t, 0.05))
     k2 = int(np.searchsorted(s.t, 0.56))              # gap > time.max_gap = 0.5
     drive(r, s, 0, k1)
-    after = drive(r, s, k2, None)
+    after = drive(r, s, k2, None, held_first=True)   # the gap is confirmed by the next sample
     assert r.resets == {"gap": 1}
     assert not r.rejected
     fresh = drive(make(name), s, k2, None)
-    assert after[k2].convergence[0] == 0.0
-    assert set(after) == set(fresh)
+    assert after[k2 + 1].convergence[0] == pytest.approx(s.t[k2 + 1] - s.t[k2], abs=1e-12)
+    assert set(after) == set(fresh) - {k2}
     for i in after:
         same_output(after[i], fresh[i])
 
@@ -428,8 +446,10 @@ def test_gap_just_under_max_gap_does_not_restart(uniform):
     out = r.process(uniform.t[118], uniform.y[118])            # 19 ms later
     assert isinstance(out, Output) and out.convergence[0] > 0.1
     r.set_input(uniform.t[140], uniform.u[140])
-    out = r.process(uniform.t[140], uniform.y[140])            # 22 ms later
-    assert out.convergence[0] == 0.0
+    assert r.process(uniform.t[140], uniform.y[140]) == HELD   # 22 ms later
+    r.set_input(uniform.t[141], uniform.u[141])
+    out = r.process(uniform.t[141], uniform.y[141])            # confirms it: one restart
+    assert out.convergence[0] == pytest.approx(1e-3)
     assert r.resets == {"gap": 1}
 
 
@@ -461,7 +481,7 @@ def values(st):
 
 
 def test_status_levels_and_values(uniform):
-    r = make("luenberger")
+    r = make("luenberger", diagnostics__window=0.25)
     st = r.status(0.0)
     v = values(st)
     assert st.level == WARN
@@ -495,7 +515,8 @@ def test_status_levels_and_values(uniform):
     st = r.status(0.7)
     v = values(st)
     assert st.level == WARN
-    assert st.message == "converged: 1 sample(s) rejected (last: measurement_non_finite)"
+    assert st.message == ("converged: 1 sample(s) rejected in the last 0.25 s "
+                          "(last: measurement_non_finite)")
     assert v["rejected: measurement_non_finite"] == "1"
     assert v["samples rejected"] == "1" and v["samples accepted"] == "701"
     assert v["measurement rate (Hz)"] == "1000.0"
@@ -550,7 +571,7 @@ def test_status_restarts_and_single_delay_values(uniform):
     assert v["state"] == "converging" and st.message.startswith("converging")
     assert v["guaranteed convergence time (s)"] == "0.1"
     assert v["form"] == "continuous (Theorem 1)"
-    drive(r, uniform, 600, 701)                               # gap: a restart
+    drive(r, uniform, 600, 701, held_first=True)              # gap: a restart
     st = r.status(0.7)
     v = values(st)
     assert v["restarts: gap"] == "1"
@@ -559,7 +580,7 @@ def test_status_restarts_and_single_delay_values(uniform):
 
 
 def test_status_diverging_single_delay(uniform):
-    r = make("single_delay")
+    r = make("single_delay", outlier__threshold=0.0)    # let the wrong measurement through
     drive(r, uniform, 0, 300)
     # after the guaranteed time, a measurement far from the prediction
     r.set_input(uniform.t[300], uniform.u[300])
@@ -596,13 +617,13 @@ def test_observer_letting_nan_through_is_never_published(uniform):
     r = make("luenberger")
     drive(r, uniform, 0, 100)
     obs = r.observer
-    orig = obs.update
+    orig = obs.update_checked
 
     def broken(t, y, u):
         orig(t, y, u)
         obs._x = np.array([0.0, NAN, 0.0])
 
-    obs.update = broken
+    obs.update_checked = broken
     r.set_input(uniform.t[100], uniform.u[100])
     assert r.process(uniform.t[100], uniform.y[100]) == "non_finite_estimate"
     assert r.rejected == {"non_finite_estimate": 1}
@@ -610,7 +631,7 @@ def test_observer_letting_nan_through_is_never_published(uniform):
     st = r.status(uniform.t[100])
     assert st.level == ERROR
     assert "non-finite" in st.message
-    del obs.update                                            # fixed: restarts at the next sample
+    del obs.update_checked                                    # fixed: restarts at the next sample
     out = drive(r, uniform, 101, 110)
     assert out[101].convergence[0] == 0.0
     for o in out.values():
@@ -729,7 +750,7 @@ OVERFLOW_REASON = {"luenberger": "non_finite_estimate", "single_delay": "non_fin
 @pytest.mark.parametrize("name", CONTINUOUS)
 def test_overflowing_model_term_rejects_the_sample(name, uniform):
     ref = drive(make(name, **OVERFLOW[name]), uniform, 0, 400)
-    r = make(name, **OVERFLOW[name])
+    r = make(name, outlier__threshold=0.0, **OVERFLOW[name])  # y = 1000 is also an outlier
     drive(r, uniform, 0, 200)
     before = np.array(r.observer.estimate, copy=True)
     got = r.process(uniform.t[199] + 5e-4, [1000.0])
@@ -743,7 +764,9 @@ def test_overflowing_model_term_rejects_the_sample(name, uniform):
 
 
 def test_exp_1000_y_is_rejected_and_nothing_non_finite_is_published():
-    r = make("luenberger", luenberger__F=["0", "exp(1000*y0)", "0"])
+    # the model itself grows to 1e17 (within limits.estimate); y jumps are no outliers here
+    r = make("luenberger", luenberger__F=["0", "exp(1000*y0)", "0"], limits__estimate=1e300,
+             outlier__threshold=0.0)
     outs = []
     t = 0.0
     for k in range(40):
@@ -788,19 +811,19 @@ def test_sampled_input_advances_the_predictor(sparse):
     obs = r.observer
     t_meas = s.t[99]
     x_meas = np.array(obs.estimate, copy=True)
-    assert obs._t == t_meas
+    assert obs._s == pytest.approx(t_meas - s.t[0], abs=1e-9)
     nxt = s.after[99]
     t_in, kind, j = s.events[nxt]
     assert kind == 0 and t_in > t_meas
     assert r.set_input(t_in, s.u[j]) is None
-    assert obs._t == t_in                                      # integrated up to the input time
+    assert obs._s == pytest.approx(t_in - s.t[0], abs=1e-9)   # integrated up to the input time
     assert not np.array_equal(obs.estimate, x_meas)
     # the measured component is the predictor omega between samples
     assert obs.estimate[0] != s.y[99][0]
     # an input stamped before the last measurement does not move the observer
-    t_before = obs._t
+    t_before = obs._s
     assert r.set_input(t_meas - 1e-4, s.u[j]) is None
-    assert obs._t == t_before
+    assert obs._s == t_before
 
 
 def test_sampled_advance_matches_prediction_without_inputs(sparse):

@@ -22,6 +22,8 @@ def _range(p: Param) -> str:
     parts = []
     if p.choices:
         parts.append(" / ".join(p.choices))
+    if p.gt is not None:
+        parts.append(f"> {p.gt:g}")
     if p.min is not None:
         parts.append(f">= {p.min:g}")
     if p.max is not None:

@@ -51,13 +51,15 @@ from typing import Sequence
 
 import numpy as np
 
+from .discretize import StepCache
+
 SCHEMES = ("eigenvalue_matched", "livne_levant", "euler")
 MAX_ORDER = 7
 #: largest n + filter_order + 1 accepted
 MAX_CHAIN = 10
 #: recursive gains lambda_0..lambda_7 (Levant)
 RECURSIVE_LAMBDAS = (1.1, 1.5, 2.0, 3.0, 5.0, 7.0, 10.0, 12.0)
-#: bounded cache of per-step-size matrices (cleared when full)
+#: bounded cache of per-step-size matrices
 _CACHE_SIZE = 64
 
 
@@ -308,7 +310,7 @@ class Differentiator:
         self._abar = np.array(_scaled_chain(NT, nf), dtype=float)
         if scheme != "eigenvalue_matched":
             self._bbar = np.zeros(NT)
-        self._cache: dict = {}
+        self._mats = StepCache(self._build_mats, _CACHE_SIZE, exact=True)
         self._S = np.zeros((self.channels, NT))
         self._fprev = np.zeros(self.channels)
         self._view = self._S[:, nf:]
@@ -426,23 +428,17 @@ class Differentiator:
         self._fprev[:] = fa
         return self._view
 
-    def _mats(self, h: float):
-        c = self._cache.get(h)
-        if c is None:
-            if len(self._cache) >= _CACHE_SIZE:
-                self._cache.clear()
-            NT = self._N
-            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-                hp = h ** np.arange(NT, dtype=float)
-                hinv = 1.0 / hp
-                if self.scheme == "euler":
-                    A = np.eye(NT) + h * np.eye(NT, k=1)
-                else:
-                    A = (self._abar * hp[None, :]) * hinv[:, None]
-                bvec = (self._bbar * h ** self._nf) * hinv
-            c = (np.ascontiguousarray(A.T), hinv, bvec)
-            self._cache[h] = c
-        return c
+    def _build_mats(self, h: float):
+        NT = self._N
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            hp = h ** np.arange(NT, dtype=float)
+            hinv = 1.0 / hp
+            if self.scheme == "euler":
+                A = np.eye(NT) + h * np.eye(NT, k=1)
+            else:
+                A = (self._abar * hp[None, :]) * hinv[:, None]
+            bvec = (self._bbar * h ** self._nf) * hinv
+        return np.ascontiguousarray(A.T), hinv, bvec
 
     def _step(self, S: np.ndarray, h: float) -> np.ndarray:
         AT, hinv, bvec = self._mats(h)

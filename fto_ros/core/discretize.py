@@ -18,17 +18,64 @@ from collections import OrderedDict
 import numpy as np
 from scipy.linalg import expm
 
-#: step sizes are rounded to this grid (s): a live stream stamped on receipt has jittery
-#: steps, and on a 1 us grid they fall on a few hundred cached step sizes instead of one
-#: new matrix exponential per sample.  An observer keeps its own model time as the sum of
-#: the rounded steps, so the rounding never accumulates (model time stays within 0.5 us
-#: of the stamps); bag stamps on a ms grid are not changed at all.
+#: model time runs on this grid (s): an observer's clock counts integer quanta since its
+#: (re)start (the base class in observers/base.py owns it), so the steps of a live stream
+#: stamped on receipt fall on a few hundred cached step sizes instead of one new matrix
+#: exponential per sample, and the model time never drifts from the stamps (float seconds
+#: near 1.7e9 resolve only 0.24 us); bag stamps on a ms grid are not changed at all.
 STEP_QUANTUM = 1e-6
+
+#: the most sub-steps any observer takes over one interval (differentiator sub-steps, the
+#: sampled single_delay predictor): the work per sample is bounded, longer intervals are
+#: gaps the runner restarts the observer at
+MAX_SUBSTEPS = 1000
+
+
+def quanta(dt: float) -> int:
+    """dt (s) as a whole number of STEP_QUANTUM."""
+    return round(dt / STEP_QUANTUM)
 
 
 def quantized_step(h: float) -> float:
     """h rounded to the STEP_QUANTUM grid (0.0 for steps under half a quantum)."""
-    return round(h / STEP_QUANTUM) * STEP_QUANTUM
+    return quanta(h) * STEP_QUANTUM
+
+
+class StepCache:
+    """``build(h)`` per step size, cached: the one step-size cache every observer uses.
+
+    Keys are integer nanoseconds and ``build`` receives the step rounded to them (the
+    observers' steps are whole STEP_QUANTUM); ``exact=True`` keys on the float h itself,
+    for callers whose steps are arbitrary (the differentiator used on its own).  Bounded
+    (least recently built first out), so a stream with ever new step sizes costs one
+    ``build`` per sample, never unbounded memory.
+    """
+
+    def __init__(self, build, size: int = 256, exact: bool = False):
+        self._build = build
+        self._size = size
+        self._exact = exact
+        self._data: OrderedDict = OrderedDict()
+        self.misses = 0
+
+    def __call__(self, h: float):
+        key = h if self._exact else round(h * 1e9)
+        value = self._data.get(key)
+        if value is None:
+            if not key > 0:
+                raise ValueError(f"step must be at least 1 ns, got {h!r} s")
+            self.misses += 1
+            value = self._build(key if self._exact else key * 1e-9)
+            self._data[key] = value
+            if len(self._data) > self._size:
+                self._data.popitem(last=False)
+        return value
+
+    def clear(self) -> None:
+        self._data.clear()
+
+    def __len__(self) -> int:
+        return len(self._data)
 
 
 def foh_matrices(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -70,24 +117,11 @@ class ExactStepper:
             raise ValueError(f"bad shapes A {self.A.shape}, B {self.B.shape}")
         self.n = self.A.shape[0]
         self.m = self.B.shape[1]
-        self._cache: OrderedDict[int, np.ndarray] = OrderedDict()
-        self._cache_size = cache_size
-        self.misses = 0
+        self.stacked = StepCache(lambda h: np.hstack(foh_matrices(self.A, self.B, h)), cache_size)
 
-    def stacked(self, h: float) -> np.ndarray:
-        """``[Phi | G0 | G1]`` for step h (seconds), from the cache when possible."""
-        key = round(h * 1e9)
-        M = self._cache.get(key)
-        if M is None:
-            if key <= 0:
-                raise ValueError(f"step must be at least 1 ns, got {h!r} s")
-            self.misses += 1
-            Phi, G0, G1 = foh_matrices(self.A, self.B, key * 1e-9)
-            M = np.hstack([Phi, G0, G1])
-            self._cache[key] = M
-            if len(self._cache) > self._cache_size:
-                self._cache.popitem(last=False)
-        return M
+    @property
+    def misses(self) -> int:
+        return self.stacked.misses
 
     def step(self, x: np.ndarray, w0: np.ndarray, w1: np.ndarray, h: float) -> np.ndarray:
         """x after a step of h with the input linear from w0 to w1."""

@@ -13,13 +13,12 @@ _repr.maxlevel = 3
 
 
 def short(value) -> str:
-    """A bounded-length rendering of ``value`` for messages: strings and exceptions as
-    their text (cut), anything else as a shortened repr.  Never walks a huge value."""
+    """A bounded-length rendering of ``value`` for messages: an exception as its text on
+    one line (cut), anything else as a shortened repr (strings quoted).  Never walks or
+    prints a huge value whole."""
     if isinstance(value, BaseException):
-        value = " ".join(str(value).split())
-    if isinstance(value, str):
-        text = " ".join(value.split()) if len(value) < 10 * MAX_MESSAGE else value[:MAX_MESSAGE]
-        return text if len(text) <= 120 else text[:117] + "..."
+        text = " ".join(str(value)[:10 * MAX_MESSAGE].split())
+        return text if len(text) <= 200 else text[:197] + "..."
     return _repr.repr(value)
 
 
@@ -27,7 +26,7 @@ class ConfigError(ValueError):
     """A parameter value is unusable.  The message names the parameter (one line, bounded)."""
 
     def __init__(self, parameter: str, problem: str):
-        parameter = short(str(parameter))
+        parameter = " ".join(str(parameter)[:200].split())
         problem = " ".join(str(problem).split())
         if len(problem) > MAX_MESSAGE:
             problem = problem[:MAX_MESSAGE - 3] + "..."

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import array
 import gc
+import math
 import os
 import sys
 import time
@@ -71,7 +72,7 @@ from ..core.errors import ConfigError
 from ..observers import REGISTRY, observer_class
 from ..observers.base import Observer, Param
 from ..runner.messages import joint_state_sample
-from ..runner.runner import CONVERGENCE_FIELDS, Runner
+from ..runner.runner import CONVERGENCE_FIELDS, HELD, Runner
 from ..runner.params_file import load_params_file
 from ..runner.settings import ROS_BUILTIN, SETTINGS
 
@@ -100,17 +101,19 @@ def _descriptor(p: Param, full_name: str) -> ParameterDescriptor:
     constraints = []
     if p.choices:
         constraints.append("one of: " + ", ".join(p.choices))
-    if p.min is not None or p.max is not None:
+    lower = p.lower
+    if lower is not None or p.max is not None:
         if p.kind == "double":
-            lo = -sys.float_info.max if p.min is None else float(p.min)
+            lo = -sys.float_info.max if lower is None else float(lower)
             hi = sys.float_info.max if p.max is None else float(p.max)
             d.floating_point_range = [FloatingPointRange(from_value=lo, to_value=hi, step=0.0)]
         elif p.kind == "int":
-            lo = _INT64_MIN if p.min is None else int(p.min)
+            lo = _INT64_MIN if lower is None else math.ceil(lower)
             hi = _INT64_MAX if p.max is None else int(p.max)
             d.integer_range = [IntegerRange(from_value=lo, to_value=hi, step=0)]
         else:  # ROS ranges apply to scalars only: state the element range in words
-            parts = ([f">= {p.min}"] if p.min is not None else []) + \
+            parts = ([f"> {p.gt}"] if p.gt is not None else []) + \
+                    ([f">= {p.min}"] if p.min is not None else []) + \
                     ([f"<= {p.max}"] if p.max is not None else [])
             constraints.append("every element " + " and ".join(parts))
     if p.default is None:
@@ -458,7 +461,8 @@ class ObserverNode(Node):
             return
         out = self._runner.process(ns * 1e-9, msg.data)
         if out.__class__ is str:
-            self._rejected(out)
+            if out is not HELD:
+                self._rejected(out)
             return
         self._publish(out, ns // _NS, ns % _NS)
 
@@ -502,7 +506,8 @@ class ObserverNode(Node):
                 return
         out = self._runner.process(t, y)
         if out.__class__ is str:
-            self._rejected(out)
+            if out is not HELD:
+                self._rejected(out)
             return
         self._publish(out, stamp.sec, stamp.nanosec)
 

@@ -14,11 +14,30 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ..core.errors import ConfigError
+from ..core.discretize import STEP_QUANTUM, quanta
+from ..core.errors import ConfigError, short
 
 
 #: parameter kinds, mapped one to one onto ROS 2 parameter types
 KINDS = ("bool", "int", "double", "string", "double_array", "int_array", "string_array")
+
+
+def check_vector(v, n: int, what: str) -> str | None:
+    """None if v is a sequence of n finite numbers, else the rejection reason
+    ``<what>_not_an_array``, ``_wrong_length``, ``_not_numeric`` or ``_non_finite``."""
+    try:
+        length = len(v)
+    except TypeError:
+        return f"{what}_not_an_array"
+    if length != n:
+        return f"{what}_wrong_length"
+    try:
+        for x in v:
+            if not math.isfinite(x):
+                return f"{what}_non_finite"
+    except TypeError:
+        return f"{what}_not_numeric"
+    return None
 
 
 class SampleRejected(Exception):
@@ -41,7 +60,9 @@ class Param:
 
     ``name`` is relative to its section (the observer type for observer
     parameters), e.g. ``A1`` becomes the ROS parameter ``single_delay.A1``.
-    ``min``/``max`` bound a scalar (or every element of an array).
+    A ``default`` of None makes the parameter required (``required``).
+    ``min``/``max`` bound a scalar (or every element of an array) inclusively,
+    ``gt`` strictly (``gt=0.0``: > 0).
     ``read_only`` parameters change the structure (dimensions, models) and can
     only be set at start-up; the others may be changed at run time and are
     re-validated by rebuilding the observer.
@@ -55,10 +76,22 @@ class Param:
     max: float | None = None
     read_only: bool = True
     choices: tuple[str, ...] = field(default=())
+    gt: float | None = None
 
     def __post_init__(self):
         if self.kind not in KINDS:
             raise TypeError(f"unknown parameter kind {self.kind!r}")
+
+    @property
+    def required(self) -> bool:
+        return self.default is None
+
+    @property
+    def lower(self) -> float | None:
+        """The smallest accepted value (inclusive), from min or gt."""
+        if self.gt is not None:
+            return math.nextafter(float(self.gt), math.inf)
+        return self.min
 
     def coerce(self, value: Any, full_name: str | None = None) -> Any:
         """Return ``value`` converted to this parameter's type, or raise ConfigError.
@@ -66,60 +99,64 @@ class Param:
         Integers are accepted for doubles (``30`` for ``30.0``), and ints and
         doubles for double arrays: robot_localization's opaque
         InvalidParameterTypeException is exactly what users complain about.
+        Values quoted in messages are shortened (a huge list never is printed whole).
         """
         name = full_name or self.name
         kind = self.kind
         try:
             if kind == "bool":
                 if not isinstance(value, (bool, np.bool_)):
-                    raise ConfigError(name, f"expected true or false, got {value!r}")
+                    raise ConfigError(name, f"expected true or false, got {short(value)}")
                 return bool(value)
             if kind == "int":
                 if isinstance(value, (bool, str)) or not float(value).is_integer():
-                    raise ConfigError(name, f"expected an integer, got {value!r}")
+                    raise ConfigError(name, f"expected an integer, got {short(value)}")
                 out = int(value)
                 self._check_range(name, out)
                 return out
             if kind == "double":
                 if isinstance(value, (bool, str)):
-                    raise ConfigError(name, f"expected a number, got {value!r}")
+                    raise ConfigError(name, f"expected a number, got {short(value)}")
                 out = float(value)
                 if not math.isfinite(out):
-                    raise ConfigError(name, f"must be finite, got {value!r}")
+                    raise ConfigError(name, f"must be finite, got {short(value)}")
                 self._check_range(name, out)
                 return out
             if kind == "string":
                 if not isinstance(value, str):
-                    raise ConfigError(name, f"expected a string, got {value!r}")
+                    raise ConfigError(name, f"expected a string, got {short(value)}")
                 if self.choices and value not in self.choices:
                     raise ConfigError(
-                        name, f"must be one of {', '.join(self.choices)}; got {value!r}")
+                        name, f"must be one of {', '.join(self.choices)}; got {short(value)}")
                 return value
             if isinstance(value, (str, bytes)) or not isinstance(value, (Sequence, np.ndarray)):
-                raise ConfigError(name, f"expected a list, got {value!r}")
+                raise ConfigError(name, f"expected a list, got {short(value)}")
             if kind == "string_array":
                 if not all(isinstance(v, str) for v in value):
-                    raise ConfigError(name, f"expected a list of strings, got {list(value)!r}")
+                    raise ConfigError(name, f"expected a list of strings, got {short(value)}")
                 return [str(v) for v in value]
             if kind == "int_array":
                 if not all(not isinstance(v, (bool, str)) and float(v).is_integer() for v in value):
-                    raise ConfigError(name, f"expected a list of integers, got {list(value)!r}")
+                    raise ConfigError(name, f"expected a list of integers, got {short(value)}")
                 out = [int(v) for v in value]
             else:  # double_array
                 if any(isinstance(v, (bool, str)) for v in value):
-                    raise ConfigError(name, f"expected a list of numbers, got {list(value)!r}")
+                    raise ConfigError(name, f"expected a list of numbers, got {short(value)}")
                 out = [float(v) for v in value]
                 if not all(math.isfinite(v) for v in out):
                     raise ConfigError(name, "must contain only finite numbers")
             for v in out:
                 self._check_range(name, v)
             return out
-        except (TypeError, ValueError) as exc:
+        except (TypeError, ValueError, OverflowError) as exc:
             if isinstance(exc, ConfigError):
                 raise
-            raise ConfigError(name, f"cannot read {value!r} as {kind}") from None
+            what = "a number too large for a double" if isinstance(exc, OverflowError) else kind
+            raise ConfigError(name, f"cannot read {short(value)} as {what}") from None
 
     def _check_range(self, name: str, v: float) -> None:
+        if self.gt is not None and not v > self.gt:
+            raise ConfigError(name, f"must be > {self.gt}, got {v}")
         if self.min is not None and v < self.min:
             raise ConfigError(name, f"must be >= {self.min}, got {v}")
         if self.max is not None and v > self.max:
@@ -130,7 +167,10 @@ def resolve(params: Sequence[Param], values: Mapping[str, Any], prefix: str = ""
     """Typed values for ``params`` from ``values`` (short names), defaults filled in.
 
     A name in ``values`` that no parameter declares is refused: a typo in a
-    params file must not be silently ignored.
+    params file must not be silently ignored.  A value given as null (YAML ``~``,
+    an empty ROS parameter) counts as not given: the default applies, and a
+    required parameter without a value is refused, so nothing reaches an
+    observer as None.
     """
     known = {p.name for p in params}
     for key in values:
@@ -139,8 +179,12 @@ def resolve(params: Sequence[Param], values: Mapping[str, Any], prefix: str = ""
                               + ", ".join(sorted(known)) + ")")
     out = {}
     for p in params:
-        raw = values.get(p.name, p.default)
-        out[p.name] = None if raw is None else p.coerce(raw, prefix + p.name)
+        raw = values.get(p.name)
+        if raw is None:
+            if p.required:
+                raise ConfigError(prefix + p.name, f"required: {p.description}")
+            raw = p.default
+        out[p.name] = p.coerce(raw, prefix + p.name)
     return out
 
 
@@ -157,12 +201,21 @@ def matrix(cfg: Mapping[str, Any], name: str, rows: int, cols: int, prefix: str 
 class Observer(abc.ABC):
     """Sample-driven, variable-step state observer.
 
-    Subclasses set ``TYPE`` (the registry name) and ``PARAMS`` and implement the
-    abstract methods.  Times are seconds (float), ``y`` has length
-    ``n_outputs``, ``u`` length ``n_inputs`` (an empty array when there is no
-    known input).  ``u`` given at time t is the input applied from t on
-    (zero-order hold, like a DAC) unless the observer's ``input_hold`` says
-    first-order hold.
+    Subclasses set ``TYPE`` (the registry name) and ``PARAMS`` and implement
+    ``_restart``, ``_first``, ``_step`` and ``estimate``.  Times are seconds
+    (float), ``y`` has length ``n_outputs``, ``u`` length ``n_inputs`` (an empty
+    array when there is no known input).  ``u`` given at time t is the input
+    applied from t on (zero-order hold, like a DAC) unless the observer's
+    ``input_hold`` says first-order hold.
+
+    **Time is owned here.**  ``update(t, ...)`` counts the observer's clock in
+    whole STEP_QUANTUM (1 us) since the first sample after the last ``reset``
+    and hands the subclass a step ``h`` that is a positive multiple of the
+    quantum and at most ``max_step``; the subclass integrates that interval and
+    nothing else.  The runner (runner/) classifies every interval before it
+    gets here (repeated, backward, a gap longer than ``max_step`` or
+    ``time.max_gap`` restarts), so on valid input an observer never raises
+    anything but SampleRejected for a value its model cannot use.
     """
 
     TYPE: str = ""
@@ -174,18 +227,91 @@ class Observer(abc.ABC):
     n_inputs: int
     state_names: list[str]
 
-    # -- life cycle -----------------------------------------------------
-    @abc.abstractmethod
-    def reset(self, t0: float, x0_hat: np.ndarray | None = None) -> None:
-        """Restart the observer at time t0 (the first sample is taken at t0)."""
+    #: stamp of the first sample since the last reset (None: waiting for it)
+    _clock_t0: float | None = None
+    #: quanta from _clock_t0 to the last accepted sample
+    _clock_k: int = 0
+    #: stamp of the last accepted sample, kept across resets (a warm restart may use it)
+    _clock_t_last: float | None = None
 
-    @abc.abstractmethod
-    def update(self, t: float, y: np.ndarray, u: np.ndarray) -> None:
-        """Take the sample y measured at t (> the previous t) with the current input u.
+    # -- life cycle (final: subclasses implement the underscored hooks) ---
+    def reset(self, t0: float | None = None, x0_hat: np.ndarray | None = None) -> None:
+        """Restart at the next sample; ``x0_hat`` is the initial estimate there (None:
+        the observer's default).  ``t0`` is accepted for compatibility and unused: the
+        clock restarts at the next sample's stamp."""
+        self._clock_t0 = None
+        self._clock_k = 0
+        self._restart(None if x0_hat is None else np.array(x0_hat, dtype=float))
+
+    def update(self, t: float, y, u) -> None:
+        """Take the sample y measured at t with the current input u.
 
         Either commits a new, finite state or raises SampleRejected and leaves
-        the state as it was.
+        the state as it was.  y and u are checked here (length, finite); the
+        runner checks them once itself and calls ``update_checked``.
         """
+        reason = (check_vector(y, self.n_outputs, "measurement")
+                  or check_vector(u, self.n_inputs, "input"))
+        if reason is not None:
+            raise SampleRejected(reason)
+        self.update_checked(t, np.asarray(y, dtype=float), np.asarray(u, dtype=float))
+
+    def update_checked(self, t: float, y: np.ndarray, u: np.ndarray) -> None:
+        """``update`` for a y and u already checked (float arrays of the right length,
+        finite): the runner's entry point."""
+        if self._clock_t0 is None:
+            gap = None if self._clock_t_last is None else quanta(t - self._clock_t_last) * STEP_QUANTUM
+            self._first(y, u, gap)
+            self._clock_t0, self._clock_k, self._clock_t_last = t, 0, t
+            return
+        k = quanta(t - self._clock_t0)
+        if k <= self._clock_k:
+            raise SampleRejected("stamp_too_close")
+        h = (k - self._clock_k) * STEP_QUANTUM
+        if h > self.max_step:
+            raise SampleRejected("step_too_long")
+        self._step(k * STEP_QUANTUM, h, y, u)
+        self._clock_k = k
+        self._clock_t_last = t
+
+    def interval(self, t: float) -> float | None:
+        """The step ``update(t, ...)`` would take (s, on the quantum grid; None before the
+        first sample after a reset).  The runner classifies intervals with it."""
+        if self._clock_t0 is None:
+            return None
+        return (quanta(t - self._clock_t0) - self._clock_k) * STEP_QUANTUM
+
+    @property
+    def started(self) -> bool:
+        """Whether a sample was accepted since the last reset."""
+        return self._clock_t0 is not None
+
+    @property
+    def time_since_start(self) -> float:
+        """Model time of the last accepted sample since the (re)start (s)."""
+        return self._clock_k * STEP_QUANTUM
+
+    @property
+    def max_step(self) -> float:
+        """The longest interval this observer bridges exactly with bounded work (s);
+        a longer one is a gap the runner restarts it at."""
+        return math.inf
+
+    # -- what a subclass implements ----------------------------------------
+    @abc.abstractmethod
+    def _restart(self, x0_hat: np.ndarray | None) -> None:
+        """Forget the run: the next sample starts a new one from ``x0_hat`` (None: the
+        observer's default)."""
+
+    @abc.abstractmethod
+    def _first(self, y: np.ndarray, u: np.ndarray, gap: float | None) -> None:
+        """The first sample after a restart (model time 0).  ``gap``: time since the last
+        sample accepted before the restart (None if none), for warm restarts."""
+
+    @abc.abstractmethod
+    def _step(self, s: float, h: float, y: np.ndarray, u: np.ndarray) -> None:
+        """Advance by ``h`` (> 0, <= max_step) to model time ``s`` since the start and take
+        the sample; commit a finite state or raise SampleRejected leaving it untouched."""
 
     # -- outputs --------------------------------------------------------
     @property

@@ -46,7 +46,6 @@ from typing import Sequence
 import numpy as np
 import sympy
 
-from ..core.discretize import quantized_step
 from ..core.expressions import NamedFunction, compile_exprs, parse
 from .base import ConfigError, Observer, Param, SampleRejected
 
@@ -317,7 +316,6 @@ class GlobalNormObserver(Observer):
         self._check_conditions(cfg)
         self._xhat = [0.0] * m
         self._w = self.w0
-        self._t = None
         self._y = self._yprev = self._hprev = None
         self._residual = float("nan")
         self._sat_active = False
@@ -395,15 +393,10 @@ class GlobalNormObserver(Observer):
             self.warnings = soft
 
     # -- protocol --------------------------------------------------------------------
-    def reset(self, t0, x0_hat=None):
+    def _restart(self, x0_hat):
         m = self.n_states
-        x = [0.0] * m if x0_hat is None else [float(v) for v in x0_hat]
-        if len(x) != m:
-            raise ValueError(f"expected {m} initial values, got {len(x)}")
-        self._xhat = x
+        self._xhat = [0.0] * m if x0_hat is None else [float(v) for v in x0_hat]
         self._w = self.w0
-        self._t = None
-        self._t0 = t0
         self._y = self._yprev = self._hprev = None
         self._sat_count = 0
         self._steps = 0
@@ -428,24 +421,20 @@ class GlobalNormObserver(Observer):
             return -gh, True
         return fv, False
 
-    def update(self, t, y, u):
+    def _first(self, y, u, gap):
         yk = float(y[0])
-        if not math.isfinite(yk):
-            raise SampleRejected("measurement_non_finite")
-        if self._t is None:
-            try:
-                gh, a, k, dk = self._vals(self._w)
-            except (ValueError, OverflowError, ZeroDivisionError):
-                raise SampleRejected("non_finite_gain") from None
-            if self.reduced:
-                self._xhat = [yk] + self._xhat[1:]
-            self._t, self._y, self._g1 = t, yk, self.gamma_1(yk)[0]
-            self._gh, self._k = gh, k
-            self._residual = abs(yk - self._xhat[0])
-            return
-        h = quantized_step(t - self._t)
-        if h <= 0.0:
-            raise SampleRejected("stamp_too_close")
+        try:
+            gh, a, k, dk = self._vals(self._w)
+        except (ValueError, OverflowError, ZeroDivisionError):
+            raise SampleRejected("non_finite_gain") from None
+        if self.reduced:
+            self._xhat = [yk] + self._xhat[1:]
+        self._y, self._g1 = yk, self.gamma_1(yk)[0]
+        self._gh, self._k = gh, k
+        self._residual = abs(yk - self._xhat[0])
+
+    def _step(self, s, h, y, u):
+        yk = float(y[0])
         try:
             new = self._advance(h, yk)
         except (ValueError, OverflowError, ZeroDivisionError):
@@ -459,7 +448,7 @@ class GlobalNormObserver(Observer):
         self._sat_count += sat
         self._steps += 1
         self._yprev, self._hprev = self._y, h
-        self._t, self._y = self._t + h, yk
+        self._y = yk
         self._residual = resid
 
     def _advance(self, h, yk):
@@ -523,12 +512,12 @@ class GlobalNormObserver(Observer):
 
     @property
     def gamma_hat(self) -> float:
-        return self._gh if self._t is not None else self._vals(self._w)[0]
+        return self._gh if self.started else self._vals(self._w)[0]
 
     @property
     def injection_gains(self) -> list[float]:
         """The gains multiplying (y - xh_0) in eq. (85), i.e. -k_i(w) (full form), or k_i(w)."""
-        k = self._k if self._t is not None else self._vals(self._w)[2]
+        k = self._k if self.started else self._vals(self._w)[2]
         return [-v for v in k] if not self.reduced else list(k)
 
     @property

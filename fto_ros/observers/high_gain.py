@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from ..core.discretize import quantized_step
+from ..core.discretize import StepCache
 from ..core.expressions import NamedFunction
 from .base import ConfigError, Observer, Param, SampleRejected
 from .global_norm import companion_expm, companion_step, output_polynomial
@@ -75,17 +75,15 @@ class HighGainObserver(Observer):
         self.state_names = cfg["state_names"] or [f"x{i}" for i in range(m)]
         if len(self.state_names) != m:
             raise ConfigError(P + "state_names", f"expected {m} names, got {len(self.state_names)}")
-        self._E_cache: dict[float, list] = {}
+        self._E_cache = StepCache(lambda h: companion_expm(self._c, h), 64)
         self._x = [0.0] * m
-        self._t = None
         self._residual = float("nan")
         self._sat = False
         self._sat_count = 0
 
-    def reset(self, t0, x0_hat=None):
+    def _restart(self, x0_hat):
         m = self.n_states
         self._x = [0.0] * m if x0_hat is None else [float(v) for v in x0_hat]
-        self._t = None
         self._y = self._yprev = self._hprev = None
         self._sat_count = 0
 
@@ -103,22 +101,13 @@ class HighGainObserver(Observer):
             raise SampleRejected("non_finite_model_term")
         return fv, sat
 
-    def update(self, t, y, u):
+    def _first(self, y, u, gap):
+        self._y = float(y[0])
+        self._residual = abs(self._y - self._x[0])
+
+    def _step(self, s, h, y, u):
         yk = float(y[0])
-        if not math.isfinite(yk):
-            raise SampleRejected("measurement_non_finite")
-        if self._t is None:
-            self._t, self._y = t, yk
-            self._residual = abs(yk - self._x[0])
-            return
-        h = quantized_step(t - self._t)
-        if h <= 0.0:
-            raise SampleRejected("stamp_too_close")
-        E = self._E_cache.get(h)
-        if E is None:
-            E = companion_expm(self._c, h)
-            if len(self._E_cache) < 64:
-                self._E_cache[h] = E
+        E = self._E_cache(h)
         c, G, m, x0 = self._c, self.gains, self.n_states, self._x
         ya, yb, yc = output_polynomial(self._yprev, self._hprev, self._y, yk, h, self.quadratic)
         v0, _ = self._model(self._y, x0)
@@ -139,7 +128,7 @@ class HighGainObserver(Observer):
         self._x, self._sat = x, sat
         self._sat_count += sat
         self._yprev, self._hprev = self._y, h
-        self._t, self._y = self._t + h, yk
+        self._y = yk
         self._residual = abs(yk - x[0])
 
     @property

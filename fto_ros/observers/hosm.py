@@ -38,7 +38,7 @@ import math
 import numpy as np
 
 from ..core import differentiator as red
-from ..core.discretize import ExactStepper, quantized_step
+from ..core.discretize import MAX_SUBSTEPS, ExactStepper, StepCache
 from ..core.expressions import VectorFunction
 from ..core.linear import place_observer_poles
 from ..core.structure import StructureError, analyse, relative_degree
@@ -185,7 +185,7 @@ class HosmObserver(Observer):
 
         # Luenberger part: z' = A_lc... no: z' = A z + B u + F + L w, w = y - C z FOH, implicit in z
         self.stepper = ExactStepper(A, np.hstack([B, np.eye(n), L]))
-        self._zcache: dict[int, np.ndarray] = {}
+        self._zcache = StepCache(self._step_matrix)
         nz = n - st.r_total
         self.n_zero = nz
         self.zstepper = ExactStepper(st.A22, st.A21) if nz else None
@@ -206,11 +206,9 @@ class HosmObserver(Observer):
         # F(y, u) without u: one evaluation per sample serves both ends of the step
         self._F_has_u = any(e.free_symbols & set(self.F.u_syms) for e in self.F.exprs)
         self._zeros_n = np.zeros(n)
-        self._yshape, self._ushape = (p,), (m,)
         self._vbar = np.zeros(p)
         self._Cpinv = np.linalg.pinv(C)
         self._x0 = None
-        self._t = None
         self._x_hat = np.zeros(n)
         self._zeta = np.zeros(p) if self.identify else None
 
@@ -239,36 +237,34 @@ class HosmObserver(Observer):
         self.M_check = "; ".join(f"M[{i}] = {self.M[i]:g} > {need[i]:.4g} = |d| {what}"
                                  for i in range(p))
 
+    @property
+    def max_step(self):
+        # differentiator sub-steps (differentiator_max_step) are bounded in number
+        ms = [d.max_step for d in self.diffs if d is not None and d.max_step]
+        return min(ms) * MAX_SUBSTEPS if ms else math.inf
+
     def _step_matrix(self, h: float) -> np.ndarray:
-        """K_h with z_new = K_h @ [z, u0, F0, w0, u1, F1, y1] (error FOH, solved for z_new)."""
-        key = round(h * 1e9)
-        K = self._zcache.get(key)
-        if K is None:
-            n, m, p = self.n_states, self.n_inputs, self.n_outputs
-            S = self.stepper.stacked(h)               # [Phi | G0 | G1], w = [u, F, ytilde]
-            w = m + n + p
-            Phi, G0, G1 = S[:, :n], S[:, n:n + w], S[:, n + w:]
-            G1L = G1[:, m + n:]
-            Mimp = np.eye(n) + G1L @ self.C
-            if np.linalg.cond(Mimp) > 1e12:
-                raise SampleRejected("singular_step")
-            if self.F.is_zero:      # no F columns: [z, u0, w0, u1, y1]
-                blocks = [Phi, G0[:, :m], G0[:, m + n:], G1[:, :m], G1L]
-            else:
-                blocks = [Phi, G0, G1[:, :m + n], G1L]
-            K = np.linalg.solve(Mimp, np.hstack(blocks))
-            if len(self._zcache) >= _CACHE:
-                self._zcache.clear()
-            self._zcache[key] = K
-        return K
+        """K_h with z_new = K_h @ [z, u0, F0, w0, u1, F1, y1] (error FOH, solved for z_new);
+        None when the implicit step is singular at this h."""
+        n, m, p = self.n_states, self.n_inputs, self.n_outputs
+        S = self.stepper.stacked(h)               # [Phi | G0 | G1], w = [u, F, ytilde]
+        w = m + n + p
+        Phi, G0, G1 = S[:, :n], S[:, n:n + w], S[:, n + w:]
+        G1L = G1[:, m + n:]
+        Mimp = np.eye(n) + G1L @ self.C
+        if np.linalg.cond(Mimp) > 1e12:
+            return None
+        if self.F.is_zero:      # no F columns: [z, u0, w0, u1, y1]
+            blocks = [Phi, G0[:, :m], G0[:, m + n:], G1[:, :m], G1L]
+        else:
+            blocks = [Phi, G0, G1[:, :m + n], G1L]
+        return np.linalg.solve(Mimp, np.hstack(blocks))
 
     # -- protocol ---------------------------------------------------------------------------
-    def reset(self, t0, x0_hat=None):
+    def _restart(self, x0_hat):
         # no initial estimate: z starts at the least-norm state consistent with the first
         # sample (z0 = C^+ y0, set in _first), so the output error starts at zero
-        self._x0 = None if x0_hat is None else np.array(x0_hat, dtype=float)
-        self._t = None
-        self._t0 = t0
+        self._x0 = x0_hat
 
     def _gather(self, ytil, v_list):
         """(omega1, v_bar) from the output error and the differentiators' estimates."""
@@ -302,26 +298,12 @@ class HosmObserver(Observer):
             return self._zeros_n
         return np.array(self.F(y, u), dtype=float)
 
-    def update(self, t, y, u):
-        y = np.asarray(y, dtype=float)
-        u = np.asarray(u, dtype=float)
-        if y.shape != self._yshape:
-            raise SampleRejected("measurement_wrong_length")
-        if not math.isfinite(y.sum()):
-            raise SampleRejected("measurement_non_finite")
-        if u.shape != self._ushape:
-            raise SampleRejected("input_wrong_length")
-        if self.n_inputs and not math.isfinite(u.sum()):
-            raise SampleRejected("input_non_finite")
-        if self._t is None:
-            self._first(t, y, u)
-            return
-        h = quantized_step(t - self._t)
-        if h <= 0.0:
-            raise SampleRejected("stamp_too_close")
+    def _step(self, s, h, y, u):
         u_end = u if self.foh_input else self._u
         F1 = self._model_term(y, u_end)
-        K = self._step_matrix(h)
+        K = self._zcache(h)
+        if K is None:
+            raise SampleRejected("singular_step")
         if self._Fzero:
             z = K @ np.concatenate((self._z, self._u, self._ytil, u_end, y))
         else:
@@ -362,7 +344,7 @@ class HosmObserver(Observer):
         if not math.isfinite(check):
             self._restore(saved)
             raise SampleRejected("non_finite_estimate")
-        self._t, self._y, self._u, self._F = self._t + h, y, u, F_now
+        self._y, self._u, self._F = y, u, F_now
         self._z, self._ytil, self._om1, self._omega2 = z, ytil, om1, omega2
         self._x_hat, self._zeta = x_hat, zeta
 
@@ -373,7 +355,7 @@ class HosmObserver(Observer):
             if d is not None and s_ is not None:
                 d.set_state(s_)
 
-    def _first(self, t, y, u) -> None:
+    def _first(self, y, u, gap) -> None:
         """The first sample after reset: z = x0_hat, differentiators start at y - C z."""
         Fy = self._model_term(y, u)
         if not math.isfinite(float(Fy.sum())):
@@ -390,7 +372,7 @@ class HosmObserver(Observer):
         omega2 = np.zeros(self.n_zero)
         om1, vbar = self._gather(ytil, v_list)
         x_hat, zeta = self._finish(z, om1, vbar, omega2)
-        self._t, self._y, self._u, self._F = t, y, u, Fy
+        self._y, self._u, self._F = y, u, Fy
         self._z, self._ytil, self._om1, self._omega2 = z, ytil, om1, omega2
         self._x_hat, self._zeta = x_hat, zeta
 
@@ -405,7 +387,7 @@ class HosmObserver(Observer):
 
     @property
     def output_residual(self):
-        if self._t is None:
+        if not self.started:
             return float("nan")
         r = self._y - self.C @ self._x_hat
         return float(math.sqrt(float(r @ r)))

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.linalg import solve_continuous_are
 
-from ..core.discretize import ExactStepper, quantized_step
+from ..core.discretize import ExactStepper
 from ..core.expressions import VectorFunction
 from ..core.linear import observability_rank, place_observer_poles
 from .base import ConfigError, Observer, Param, SampleRejected, matrix
@@ -87,36 +87,31 @@ class LuenbergerObserver(Observer):
         if len(self.state_names) != n:
             raise ConfigError(P + "state_names", f"expected {n} names, got {len(self.state_names)}")
         self._x = np.zeros(n)
-        self._t = self._y = self._u = None
+        self._y = self._u = None
         self._residual = float("nan")
 
     # -- protocol ---------------------------------------------------------
-    def reset(self, t0, x0_hat=None):
-        self._x = np.zeros(self.n_states) if x0_hat is None else np.array(x0_hat, dtype=float)
-        self._t = None
-        self._t0 = t0
+    def _restart(self, x0_hat):
+        self._x = np.zeros(self.n_states) if x0_hat is None else x0_hat.copy()
 
-    def update(self, t, y, u):
-        y = np.asarray(y, dtype=float)
-        u = np.asarray(u, dtype=float)
-        if self._t is None and not np.all(np.isfinite(self.F(y, u))):
+    def _first(self, y, u, gap):
+        if not np.all(np.isfinite(self.F(y, u))):
             # the first sample's model term is the next step's starting point
             raise SampleRejected("non_finite_model_term")
-        t_model = t
-        if self._t is not None:
-            h = quantized_step(t - self._t)     # model time = sum of these: within 0.5 us of t
-            if h <= 0.0:
-                raise SampleRejected("stamp_too_close")
-            u_end = u if self.foh_input else self._u
-            w0 = np.concatenate((self._u, self.F(self._y, self._u), self._y))
-            w1 = np.concatenate((u_end, self.F(y, u_end), y))
-            x = self.stepper.step(self._x, w0, w1, h)
-            if not np.all(np.isfinite(x)):
-                raise SampleRejected("non_finite_estimate")
-            self._x = x
-            t_model = self._t + h
-        self._t, self._y, self._u = t_model, y, u
-        self._residual = float(np.linalg.norm(y - self.C @ self._x))
+        self._commit(self._x, y, u)
+
+    def _step(self, s, h, y, u):
+        u_end = u if self.foh_input else self._u
+        w0 = np.concatenate((self._u, self.F(self._y, self._u), self._y))
+        w1 = np.concatenate((u_end, self.F(y, u_end), y))
+        x = self.stepper.step(self._x, w0, w1, h)
+        if not np.all(np.isfinite(x)):
+            raise SampleRejected("non_finite_estimate")
+        self._commit(x, y, u)
+
+    def _commit(self, x, y, u):
+        self._x, self._y, self._u = x, y, u
+        self._residual = float(np.linalg.norm(y - self.C @ x))
 
     @property
     def estimate(self):

@@ -42,7 +42,7 @@ import math
 import numpy as np
 
 from ..core.differentiator import SCHEMES, Differentiator, recursive_to_nonrecursive
-from ..core.discretize import ExactStepper
+from ..core.discretize import MAX_SUBSTEPS, ExactStepper
 from ..core.symbolic_model import SymbolicModel
 from .base import ConfigError, Observer, Param, SampleRejected
 
@@ -299,7 +299,6 @@ class NewtonInversionObserver(Observer):
                                    box=cfg["check_box"], input_box=cfg["check_input_box"],
                                    grid=cfg["check_grid"], max_condition=self.max_condition,
                                    prefix=P)
-        self._t0 = None
         self._x = list(self.x0_default)
         self._health = math.nan
         self._residual = math.nan
@@ -348,31 +347,19 @@ class NewtonInversionObserver(Observer):
         return out
 
     # -- protocol ---------------------------------------------------------------------------
-    def reset(self, t0, x0_hat=None):
-        self._t0 = None
+    def _restart(self, x0_hat):
         self._x = list(self.x0_default) if x0_hat is None else [float(a) for a in x0_hat]
         self._health = math.nan
         self._residual = math.nan
         self._etilde = math.nan
         self._active = False
 
-    def update(self, t, y, u):
-        y = np.asarray(y, dtype=float).reshape(-1)
-        u = np.asarray(u, dtype=float).reshape(-1)
-        if y.size != 1:
-            raise SampleRejected("measurement_wrong_length")
-        if not math.isfinite(y[0]):
-            raise SampleRejected("measurement_non_finite")
-        if u.size != self.n_inputs:
-            raise SampleRejected("input_wrong_length")
-        if not np.all(np.isfinite(u)):
-            raise SampleRejected("input_non_finite")
-        if self._t0 is None:
-            self._start(float(t), y, u)
-        else:
-            self._step(float(t), y, u)
+    @property
+    def max_step(self):
+        # differentiator sub-steps (max_step) are bounded in number
+        return self.diff_args["max_step"] * MAX_SUBSTEPS if "max_step" in self.diff_args else math.inf
 
-    def _start(self, t, y, u):
+    def _first(self, y, u, gap):
         n = self.n
         x = list(self._x)
         snap_u = None
@@ -400,18 +387,14 @@ class NewtonInversionObserver(Observer):
         self._eta = eta.copy()
         if self.filter is not None and self.filter.k:
             self._eta = (self.filter.C @ self._xf).ravel() + self.filter.D * eta
-        self._t0 = self._t = t
         self._x, self._J, self._G, self._O = x, J, G, O
         self._active = self.delay <= 0.0
         self._etilde = math.sqrt(sum((a - b) ** 2 for a, b in zip(eta[:n], O))) if not self.ndim else 0.0
         self._residual = abs(y[0] - O[0])
         self._health = math.nan
 
-    def _step(self, t, y, u):
+    def _step(self, s, h, y, u):
         n = self.n
-        h = t - self._t
-        if not h > 0.0:
-            raise SampleRejected("stamp_too_close")
         snap_y = self.Dy.get_state()
         snap_u = self.Du.get_state() if self.Du is not None else None
         try:
@@ -426,7 +409,7 @@ class NewtonInversionObserver(Observer):
             else:
                 xf, eta = None, eta_raw
             x = self._x
-            active = (t - self._t0) >= self.delay - 1e-12
+            active = s >= self.delay - 1e-12
             if not active:
                 ev = self.model.evaluate(x, ue)
                 if ev is None:
@@ -475,7 +458,7 @@ class NewtonInversionObserver(Observer):
         # commit
         self._x, self._J, self._G, self._O = x_new, J, G, O
         self._eta_raw, self._eta, self._xf = eta_raw, eta, xf
-        self._t, self._active, self._etilde = t, active, et
+        self._active, self._etilde = active, et
         self._residual = abs(y[0] - O[0])
         self._health = math.nan          # cond(J) computed on demand
 
@@ -486,7 +469,7 @@ class NewtonInversionObserver(Observer):
 
     @property
     def health(self):
-        if self._t0 is None:
+        if not self.started:
             return math.nan
         if math.isnan(self._health):
             J = np.asarray(self._J, dtype=float).reshape(self.n, self.n)
@@ -511,7 +494,7 @@ class NewtonInversionObserver(Observer):
             "cond(J)": f"{self.health:.4g}",
             "|eta_tilde|": f"{self._etilde:.3g}",
             "differentiator residual |y - eta_0|": f"{float(self.Dy.residual[0]):.3g}"
-            if self._t0 is not None else "n/a",
+            if self.started else "n/a",
             "input derivatives": "known (input channels)" if self.known_derivatives else
                                  ("estimated (Remark 5)" if self.Du is not None else "not needed"),
             "start-up cond(J) at x_hat(0)": f"{s['cond_at_x0']:.4g}",

@@ -61,13 +61,12 @@ constant-gain Luenberger observer from then on).
 from __future__ import annotations
 
 import math
-from collections import OrderedDict
 from fractions import Fraction
 
 import numpy as np
 from scipy.linalg import expm
 
-from ..core.discretize import STEP_QUANTUM, ExactStepper
+from ..core.discretize import MAX_SUBSTEPS, STEP_QUANTUM, ExactStepper, StepCache, quanta
 from ..core.expressions import VectorFunction
 from .base import ConfigError, Observer, Param, SampleRejected, matrix
 
@@ -370,7 +369,7 @@ class PrescribedTimeObserver(Observer):
         self._sl_f1 = slice(n + W + p_in, n + 2 * W - 1)
         self._zbuf = np.zeros(n + 2 * W)
         self._q = np.zeros(n)
-        self._step_cache: OrderedDict[int, tuple] = OrderedDict()
+        self._step_cache = StepCache(self._step_matrices)
         self.foh_input = cfg["input_hold"] == "foh"
 
         if cfg["state_map"]:
@@ -384,13 +383,13 @@ class PrescribedTimeObserver(Observer):
             raise ConfigError(P + "state_names", f"expected {n} names, got {len(self.state_names)}")
         self.reset_keeps_estimate = cfg["reset_keeps_estimate"]
 
-        self._ebar_cache: OrderedDict[int, np.ndarray] = OrderedDict()
-        self._after_cache: OrderedDict[int, np.ndarray] = OrderedDict()
+        self._ebar_cache = StepCache(lambda h: _balanced_expm(self.l, h))
+        self._after_cache = StepCache(self._after_matrix)
         self._x = np.zeros(n)
         self._x_pub = np.zeros(n)
         self._t = None
         self._prev = None          # (t, y, u, F(y, u), y - x_hat_1) of the last sample
-        self._anchor = 0.0         # model time origin (stamp of the first sample)
+        self._kstart = 0           # model quanta of the sample the clock (re)started at
         self._tw = 0.0             # start of the current window, from the anchor
         self._after = False        # past the window end (modes stop / constant)
         # the constant mode's gains (set when the window ends); None: injections off
@@ -468,44 +467,41 @@ class PrescribedTimeObserver(Observer):
 
     # -- cached step matrices --------------------------------------------------------
     def _ebar(self, h: float) -> np.ndarray:
-        key = round(h * 1e9)
-        E = self._ebar_cache.get(key)
-        if E is None:
-            E = _balanced_expm(self.l, max(key, 1) * 1e-9)
-            self._ebar_cache[key] = E
-            if len(self._ebar_cache) > 256:
-                self._ebar_cache.popitem(last=False)
-        return E
+        return self._ebar_cache(max(h, 1e-9))
 
-    def _after_step(self, v: np.ndarray, h: float, frozen) -> np.ndarray:
-        """Transition past the window end: free (stop) or frozen gains (constant)."""
-        key = round(h * 1e9)
-        E = self._after_cache.get(key)
-        if E is None:
-            hh = max(key, 1) * 1e-9
-            col = np.zeros(self.n) if frozen is None else frozen
-            E = _balanced_expm(col, hh)
-            E = E / hh ** self._hpow_exp[:, None] * hh ** self._hpow_exp[None, :]   # H^-1 E H
-            self._after_cache[key] = E
-            if len(self._after_cache) > 256:
-                self._after_cache.popitem(last=False)
-        return E @ v
+    def _after_matrix(self, h: float) -> np.ndarray:
+        """H^-1 e^(...) H past the window end: free (stop) or frozen gains (constant)."""
+        col = np.zeros(self.n) if self._frozen is None else self._frozen
+        E = _balanced_expm(col, h)
+        return E / h ** self._hpow_exp[:, None] * h ** self._hpow_exp[None, :]
+
+    def _after_step(self, v: np.ndarray, h: float) -> np.ndarray:
+        """Transition past the window end (the cache is cleared when _frozen changes)."""
+        return self._after_cache(max(h, 1e-9)) @ v
 
     # -- protocol ---------------------------------------------------------------------
-    def reset(self, t0, x0_hat=None):
-        """Start a new window at the next sample (taken at t0).
+    # Model time: whole quanta (core.discretize.STEP_QUANTUM) since the first sample ever
+    # (the anchor), continued across warm restarts; the base class's clock restarts at
+    # every reset at model quanta _kstart.
+    def _restart(self, x0_hat):
+        """Start a new window at the next sample.
 
         Without x0_hat and with ``reset_keeps_estimate``, the current estimate is
-        kept and moved on to that sample by a normal step of the old window.
+        kept (moved on to that sample by a step of the old window when the gap to it
+        is at most T; beyond, the old window says nothing useful and x is kept as is).
         """
         if x0_hat is not None:
-            x = np.asarray(x0_hat, dtype=float)
-            self._x = np.linalg.solve(self.Smap, x) if self.Smap is not None else x.copy()
+            self._x = np.linalg.solve(self.Smap, x0_hat) if self.Smap is not None else x0_hat.copy()
             self._prev = None
         elif not self.reset_keeps_estimate:
             self._x = np.zeros(self.n)
             self._prev = None
         self._t = None
+
+    @property
+    def max_step(self):
+        # a step crossing window ends costs one transition per window: at most MAX_SUBSTEPS
+        return self.s_end * MAX_SUBSTEPS if self.mode == "restart" else math.inf
 
     def _w(self, u, f, r: float) -> np.ndarray:
         """w = (u, F(y, u), r) (F only when given)."""
@@ -521,24 +517,25 @@ class PrescribedTimeObserver(Observer):
             raise SampleRejected("non_finite_model_term")
         return f
 
-    def update(self, t, y, u):
-        y = np.asarray(y, dtype=float)
-        u = np.asarray(u, dtype=float)
-        if self._t is None:
-            self._start(t, y, u)
-        else:
-            self._apply(y, u, *self._compute(t, y, u))
+    def _step(self, s, h, y, u):
+        self._apply(y, u, *self._compute(self._kstart + quanta(s), y, u))
 
-    def _start(self, t, y, u):
+    def _first(self, y, u, gap):
         f = self._f(y, u)
         x = self._x
-        if self._prev is not None and round((t - self._anchor) / STEP_QUANTUM) > self._prev[0]:
-            # warm restart: finish the old window's step up to t, then start a new one
-            k, x, post = self._compute(t, y, u)[:3]
-        else:
-            self._anchor, k = float(t), 0        # model time origin
+        k, post = 0, None
+        if self._prev is not None and gap is not None and 0 < gap <= self.T:
+            # warm restart: finish the old window's step up to this sample, then start anew
+            try:
+                k, x, post = self._compute(self._prev[0] + quanta(gap), y, u)[:3]
+            except SampleRejected:
+                k, x = self._prev[0] + quanta(gap), self._x       # keep the estimate as it is
+        elif self._prev is not None:
+            k = self._prev[0] + 1          # model time keeps increasing; the gap is not bridged
+        if post is None:
             post = float(y[0] - x[0])
         self._x = x
+        self._kstart = k
         self._tw = k * STEP_QUANTUM             # the window starts at this sample
         self._after, self._frozen = False, (self.g_end if self.mode == "constant" else None)
         self._after_cache.clear()
@@ -547,36 +544,25 @@ class PrescribedTimeObserver(Observer):
 
     def _step_matrices(self, h: float):
         """([Phi | G0 | G1] of the model, its r(t_k+1) column, 1 / (1 + that column's 1st entry))."""
-        key = round(h * 1e9)
-        entry = self._step_cache.get(key)
-        if entry is None:
-            S = self.model.stacked(h)
-            g1 = S[:, self._ir1].copy()
-            den = 1.0 + g1[0]
-            entry = (S, g1, 1.0 / den if abs(den) > 1e-9 else math.nan)
-            self._step_cache[key] = entry
-            if len(self._step_cache) > 256:
-                self._step_cache.popitem(last=False)
-        return entry
+        S = self.model.stacked(h)
+        g1 = S[:, self._ir1].copy()
+        den = 1.0 + g1[0]
+        return S, g1, 1.0 / den if abs(den) > 1e-9 else math.nan
 
-    def _compute(self, t, y, u):
-        """The step from the last sample to t; nothing is committed (SampleRejected leaves
-        the state as it was)."""
+    def _compute(self, k, y, u):
+        """The step from the last sample to model quanta k; nothing is committed
+        (SampleRejected leaves the state as it was)."""
         kp, yp, up, fp, r0 = self._prev
         n = self.n
-        # model time: an integer number of STEP_QUANTUM (1 us) since the anchor, the stamp
-        # rounded to that grid: steps hit cached matrices even for jittery live stamps, and
-        # the model time never drifts from the stamps (float seconds near 1.7e9 resolve only
-        # 0.24 us, and a drift of 0.5 us in the time of a sample is 1e-3 of error once the
-        # gains differentiate over one step at the end of a window)
-        k = round((t - self._anchor) / STEP_QUANTUM)
-        if k <= kp:
-            raise SampleRejected("stamp_too_close")
+        # model time: an integer number of STEP_QUANTUM (1 us): steps hit cached matrices
+        # even for jittery live stamps, and the model time never drifts from the stamps (a
+        # drift of 0.5 us in the time of a sample is 1e-3 of error once the gains
+        # differentiate over one step at the end of a window)
         h = (k - kp) * STEP_QUANTUM
         tp, t = kp * STEP_QUANTUM, k * STEP_QUANTUM
         u_end = u if self.foh_input else up
         f1 = self._f(y, u_end)
-        S, g1, inv_den = self._step_matrices(h)
+        S, g1, inv_den = self._step_cache(h)
         if math.isnan(inv_den):
             raise SampleRejected("step_too_long")
         # [x_hat; w0; w1] with w = (u, F, r) and r(t_k+1) = 0 for now
@@ -634,7 +620,7 @@ class PrescribedTimeObserver(Observer):
         t = ta
         while t < tb:
             if after:
-                v = self._after_step(v, tb - t, frozen)
+                v = self._after_step(v, tb - t)
                 break
             t_end = tw + self.s_end
             if tb < t_end - 1e-10:
@@ -725,7 +711,7 @@ class PrescribedTimeObserver(Observer):
     @property
     def window_start(self) -> float:
         """Start of the current window (the stamps' time base)."""
-        return self._anchor + self._tw
+        return self._clock_t0 + self._tw - self._kstart * STEP_QUANTUM
 
     @property
     def after_window(self) -> bool:
@@ -753,7 +739,7 @@ class PrescribedTimeObserver(Observer):
             out["time to T (s)"] = f"{self.T - s:.6g}"
         out["window started at (s)"] = f"{self.window_start:.6f}"
         if self.last_end is not None:
-            out["last window end (s)"] = f"{self._anchor + self.last_end[0]:.6f} ({self.last_end[1]})"
+            out["last window end (s)"] = f"{self.window_start - self._tw + self.last_end[0]:.6f} ({self.last_end[1]})"
         out["restarts (since reset)"] = str(self.restarts)
         out["restarts (total)"] = str(self.restarts_total)
         out["largest gain now"] = f"{float(np.max(np.abs(self.gains))):.4g}"

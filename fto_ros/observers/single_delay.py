@@ -42,12 +42,15 @@ import numpy as np
 from scipy.linalg import expm
 
 from ..core.delay_buffer import DelayBuffer
-from ..core.discretize import ExactStepper, quantized_step
+from ..core.discretize import MAX_SUBSTEPS, STEP_QUANTUM, ExactStepper, StepCache, quanta
 from ..core.expressions import VectorFunction
 from ..core.linear import observability_rank
 from .base import ConfigError, Observer, Param, SampleRejected, matrix
 
 P = "single_delay."
+#: a step longer than tau / FILL_POINTS fills the delay buffer with at most this many exact
+#: intermediate points over the last tau (bounded work per sample, whatever the gap)
+FILL_POINTS = 16
 
 
 # ---------------------------------------------------------------------------
@@ -216,7 +219,8 @@ class SingleDelayObserver(Observer):
             raise ConfigError(P + "state_names", f"expected {n} names, got {len(self.state_names)}")
         self._build_matrices()
         self.buffer = DelayBuffer(n1)
-        self._t0 = None
+        # a step longer than this is a gap whose delayed values are filled in (_fill)
+        self._fill_step = tau / FILL_POINTS
         self._x_hat = np.zeros(n)
         self._health = 0.0
         self._residual = float("nan")
@@ -268,7 +272,7 @@ class SingleDelayObserver(Observer):
             Mo[2 * n1:, :N] = Me
             Mo[2 * n1:, N + n1 + q:] = d["R"]
             self._Mo = Mo
-            self._fused_cache: dict[int, np.ndarray] = {}
+            self._fused_cache = StepCache(self._fused)
             return
         # sampled form: Z = [z, omega]; v = [F1(omega,u), F2(omega,u), dl(t - tau)]
         # omega' = A2 xi_e - k omega + F2, xi_e = Me z + R omega + dl  (after t0 + tau)
@@ -293,51 +297,53 @@ class SingleDelayObserver(Observer):
         self.stepper_after = augmented(True)
 
     # -- protocol ----------------------------------------------------------------
-    def reset(self, t0, x0_hat=None):
+    # Model time s runs from 0 at the first sample after a (re)start (the base class's
+    # clock): the delay buffer, the convergence test and the sampled predictor use it.
+    def _restart(self, x0_hat):
         n1, q = self.n1, self.q
-        xi = np.zeros(n1 + q) if x0_hat is None else np.linalg.solve(self.Pmap, np.asarray(x0_hat, float))
+        xi = np.zeros(n1 + q) if x0_hat is None else np.linalg.solve(self.Pmap, x0_hat)
         self._z = np.zeros(3 * n1 + q)
         self._z[self.sl["x1"]] = xi[:n1]
         self._xi2_init = None if x0_hat is None else xi[n1:]
-        self._t0 = t0
-        self._t = None
+        self._s = None
         self._u = np.zeros(self.n_inputs)
         self.buffer.clear()
         self._residual = float("nan")
         self._health = 0.0
 
     def _w(self, y, u) -> np.ndarray:
-        """w = [F1(y, u), F2(y, u), y] (one compiled call for F1 and F2); NaN-filled if F fails."""
+        """w = [F1(y, u), F2(y, u), y] (one compiled call for F1 and F2); SampleRejected if
+        the model terms are not finite there."""
         f = self.F(y, u)
         if not math.isfinite(sum(f)):
             raise SampleRejected("non_finite_model_term")
         return np.array(f + tuple(y))
 
-    def _converged_at(self, t) -> bool:
-        return t - self._t0 >= self.tau - 1e-9
+    def _converged_at(self, s) -> bool:
+        return s >= self.tau - 1e-9
 
-    def update(self, t, y, u):
-        y = np.asarray(y, dtype=float)
-        u = np.asarray(u, dtype=float)
-        if self._t is None:
-            self._start(t, y, u)
-            return
-        if self.sampled:
-            self._update_sampled(t, y, u)
-        else:
-            self._update_continuous(t, y, u)
+    @property
+    def max_step(self):
+        # the sampled predictor sub-steps the interval: at most MAX_SUBSTEPS of them
+        return self.substep * MAX_SUBSTEPS if self.sampled else math.inf
 
-    def _start(self, t, y, u):
+    def _first(self, y, u, gap):
         z = self._z.copy()
         # xh2(t0) = Y(t0) unless the user gave it: the innovation starts small
         z[self.sl["x2"]] = y if self._xi2_init is None else self._xi2_init
         w = self._w(y, u)
         self._z = z
-        self.buffer.push(t, self.Md @ z, self.MdA @ z + self.MdB @ w)
-        self._t, self._y, self._u, self._w_prev = t, y, u, w
+        self.buffer.push(0.0, self.Md @ z, self.MdA @ z + self.MdB @ w)
+        self._s, self._y, self._u, self._w_prev = 0.0, y, u, w
         self._omega = y.copy()
         self._xi_e = z[self.sl["x1"]].copy()
         self._publish(y)
+
+    def _step(self, s, h, y, u):
+        if self.sampled:
+            self._update_sampled(s, y, u)
+        else:
+            self._update_continuous(s, h, y, u)
 
     def _fused(self, h: float) -> np.ndarray:
         """K(h) with K(h) [z; w0; w1] = [z(t+h); dl; d(dl)/dt; Me z + R Y] at t + h.
@@ -345,106 +351,136 @@ class SingleDelayObserver(Observer):
         The exact step and every linear read-out of the update in one
         matrix-vector product (cached per step size, like the step itself).
         """
-        key = round(h * 1e9)
-        K = self._fused_cache.get(key)
-        if K is None:
-            S_h = self.stepper.stacked(key * 1e-9)
-            N, W = S_h.shape[0], self.n1 + 2 * self.q
-            z_w1 = np.zeros((N + W, N + 2 * W))
-            z_w1[:N] = S_h
-            z_w1[N:, N + W:] = np.eye(W)
-            K = np.vstack([S_h, self._Mo @ z_w1])
-            if len(self._fused_cache) >= 256:
-                self._fused_cache.pop(next(iter(self._fused_cache)))
-            self._fused_cache[key] = K
-        return K
+        S_h = self.stepper.stacked(h)
+        N, W = S_h.shape[0], self.n1 + 2 * self.q
+        z_w1 = np.zeros((N + W, N + 2 * W))
+        z_w1[:N] = S_h
+        z_w1[N:, N + W:] = np.eye(W)
+        return np.vstack([S_h, self._Mo @ z_w1])
 
-    def _update_continuous(self, t, y, u):
+    def _update_continuous(self, s, h, y, u):
         n1, N = self.n1, self._z.shape[0]
-        h = quantized_step(t - self._t)     # model time = sum of these: within 0.5 us of t
-        if h <= 0.0:
-            raise SampleRejected("stamp_too_close")
         u_end = u if self.foh_input else self._u
         w1 = self._w(y, u_end)
         w0 = self._w_prev
-        out = self._fused(h) @ np.concatenate((self._z, w0, w1))
+        mark = self.buffer.mark()
+        z0, h_last = self._z, h
+        if h > self._fill_step:
+            # a gap: the reads at s' - tau for the next tau fall inside it, so fill the delay
+            # buffer there with exact intermediate states (FOH of w over the gap, stepped in
+            # whole quanta) instead of one Hermite segment across the whole gap
+            k1 = quanta(s)
+            try:
+                z0, k0, w0 = self._fill(z0, quanta(self._s), k1, w0, w1)
+            except SampleRejected:
+                self.buffer.rewind(mark)
+                raise
+            h_last = (k1 - k0) * STEP_QUANTUM      # the last piece of the gap
+        out = self._fused_cache(h_last) @ np.concatenate((z0, w0, w1))
         z = out[:N]
         dl_now = out[N:N + n1]
         ddl_now = out[N + n1:N + 2 * n1]
-        if self._converged_at(t):
-            mark = self.buffer.mark()
-            dl_del = self.buffer.at(max(t - self.tau, self.buffer.first_time))
+        if self._converged_at(s):
+            dl_del = self.buffer.at(max(s - self.tau, self.buffer.first_time))
             xi_e = out[N + 2 * n1:] + dl_del
         else:
-            mark, dl_del = None, None
+            dl_del = None
             xi_e = z[:n1]
         # a NaN or Inf anywhere in z or w reaches out (0 * nan is nan): one check covers all
         if not math.isfinite(out.sum()):
-            if mark is not None:
-                self.buffer.rewind(mark)
+            self.buffer.rewind(mark)
             raise SampleRejected("non_finite_estimate")
         w_next = w1 if (u_end is u or np.array_equal(u, u_end)) else self._w(y, u)
         # one-step prediction of Y from the previous estimate: the residual
         ek = math.exp(-self.k * h)
-        pred = ek * self._y + (1 - ek) / self.k * (self.A2 @ self._xi_e + w0[n1:n1 + self.q])
+        pred = ek * self._y + (1 - ek) / self.k * (self.A2 @ self._xi_e + self._w_prev[n1:n1 + self.q])
         r = y - pred
         self._residual = math.sqrt(r @ r)
-        self.buffer.push(t, dl_now, ddl_now)
+        self.buffer.push(s, dl_now, ddl_now)
         self.buffer.trim()
         self._w_prev = w_next
-        self._z, self._t, self._y, self._u, self._xi_e = z, self._t + h, y, u, xi_e
+        self._z, self._s, self._y, self._u, self._xi_e = z, s, y, u, xi_e
         self._health = 0.0 if dl_del is None else math.sqrt(dl_del @ dl_del)
         self._publish(y)
 
+    def _fill(self, z, k0, k1, w0, w1):
+        """Step z exactly from quanta k0 towards k1, pushing the delayed combination at
+        points at most ``_fill_step`` apart over [k1 - tau, k1) (earlier ones would be
+        trimmed at once), with w linear from w0 (at k0) to w1 (at k1).  Returns the
+        state, its quanta and w at the last point, from where the final step goes to k1.
+        At most FILL_POINTS + 1 steps, whatever the gap; SampleRejected (buffer pushes to
+        be undone by the caller) if a value is not finite."""
+        n1, N = self.n1, z.shape[0]
+        a = max(k0, k1 - quanta(self.tau))
+        m = min(max(1, math.ceil((k1 - a) * STEP_QUANTUM / self._fill_step)), FILL_POINTS, k1 - a)
+        points = ([a] if a > k0 else []) + [a + round(j * (k1 - a) / m) for j in range(1, m)]
+        for p in points:
+            wp = w0 + (w1 - w0) * ((p - k0) / (k1 - k0))
+            out = self._fused_cache((p - k0) * STEP_QUANTUM) @ np.concatenate((z, w0, wp))
+            if not math.isfinite(out.sum()):
+                raise SampleRejected("non_finite_estimate")
+            z = out[:N]
+            self.buffer.push(p * STEP_QUANTUM, out[N:N + n1], out[N + n1:N + 2 * n1])
+            k0, w0 = p, wp
+        return z, k0, w0
+
     # -- sampled form -----------------------------------------------------------
     def advance(self, t, u):
-        """Sampled form: integrate the predictor up to t with the held input, then hold u.
+        """Sampled form: integrate the predictor up to t with the input (held, or linear
+        to the new value with ``input_hold: foh``), then take u as the current input.
 
-        Called by the runner on every input message, so an input faster than
-        the sparse measurements is applied when it changes.
+        Called by the runner on every input message, so an input faster than the sparse
+        measurements is applied when it changes.  An interval the predictor cannot bridge
+        (longer than ``max_step``) is not integrated: the next measurement is then a gap.
         """
         u = np.asarray(u, dtype=float)
-        if not self.sampled or self._t is None or t < self._t:
+        if not self.sampled or not self.started:
             return
-        if t > self._t:
-            self._z, self._omega, self._xi_e = self._integrate(t)
-            self._t = t
+        s = quanta(t - self._clock_t0) * STEP_QUANTUM
+        if s < self._s:
+            return
+        if self._s < s <= self._s + self.max_step:
+            self._z, self._omega, self._xi_e = self._integrate(s, u if self.foh_input else self._u)
+            self._s = s
             self._publish(self._omega)
         self._u = u
 
-    def _update_sampled(self, t, y, u):
-        if t < self._t:
+    def _update_sampled(self, s, y, u):
+        if s < self._s:
             # an input after this measurement already moved the prediction on
             raise SampleRejected("measurement_older_than_prediction")
+        if s - self._s > self.max_step:
+            raise SampleRejected("step_too_long")
         self._w(y, u)               # omega = y must give finite model terms (raises if not)
-        z, omega, _ = self._integrate(t)
+        z, omega, _ = self._integrate(s, self._u)
         self._residual = float(np.linalg.norm(y - omega))
         omega = y.copy()                                       # omega(t_j) = Y(t_j)
         mark = self.buffer.mark()
-        xi_e = self._xi_e_sampled(t, z, omega)
+        xi_e = self._xi_e_sampled(s, z, omega)
         if not math.isfinite(xi_e.sum()):
             self.buffer.rewind(mark)
             raise SampleRejected("non_finite_estimate")
         self.buffer.trim()
-        self._z, self._omega, self._xi_e, self._t, self._y, self._u = z, omega, xi_e, t, y, u
+        self._z, self._omega, self._xi_e, self._s, self._y, self._u = z, omega, xi_e, s, y, u
         self._publish(y)
 
-    def _xi_e_sampled(self, t, z, omega):
-        if not self._converged_at(t):
+    def _xi_e_sampled(self, s, z, omega):
+        if not self._converged_at(s):
             return z[self.sl["x1"]].copy()
-        dl = self.buffer.at(max(t - self.tau, self.buffer.first_time))
+        dl = self.buffer.at(max(s - self.tau, self.buffer.first_time))
         self._health = float(np.linalg.norm(dl))
         return self.Me @ z + self.R @ omega + dl
 
-    def _integrate(self, t_end):
-        """(z, omega, xi_e) at t_end: sub-steps from self._t, exact linear part, Heun on F.
+    def _integrate(self, s_end, u_end):
+        """(z, omega, xi_e) at s_end: sub-steps from self._s, exact linear part, Heun on F,
+        the input linear from self._u to u_end.
 
         Pushes the delayed combination at every sub-step; on a non-finite value
         it undoes those pushes and raises SampleRejected, leaving the state as it was.
         """
         mark = self.buffer.mark()
         try:
-            out = self._substeps(t_end)
+            out = self._substeps(s_end, u_end)
         except SampleRejected:
             self.buffer.rewind(mark)
             raise
@@ -453,39 +489,44 @@ class SingleDelayObserver(Observer):
             raise SampleRejected("non_finite_prediction")
         return out
 
-    def _delayed(self, t):
-        if not self._converged_at(t):
+    def _delayed(self, s):
+        if not self._converged_at(s):
             return np.zeros(self.n1)
-        return self.buffer.at(max(t - self.tau, self.buffer.first_time))
+        return self.buffer.at(max(s - self.tau, self.buffer.first_time))
 
-    def _substeps(self, t_end):
+    def _substeps(self, s_end, u_end):
         N = 3 * self.n1 + self.q
-        t = t0 = self._t
+        s = s0 = self._s
         Z = np.concatenate((self._z, self._omega))
-        u = self._u
-        # t_end == t0 when an input at the measurement's time already moved the prediction on
-        steps = 0 if t_end == t0 else max(1, math.ceil((t_end - t0) / self.substep - 1e-9))
+        u0 = self._u
+        held = u_end is u0 or np.array_equal(u_end, u0)
+
+        def u_at(t):
+            return u0 if held else u0 + (u_end - u0) * ((t - s0) / (s_end - s0))
+        # s_end == s0 when an input at the measurement's time already moved the prediction on
+        steps = 0 if s_end == s0 else max(1, math.ceil((s_end - s0) / self.substep - 1e-9))
         for i in range(steps):
-            t_next = t0 + (i + 1) * (t_end - t0) / steps if i + 1 < steps else t_end
-            after = self._converged_at(t)
+            s_next = s0 + (i + 1) * (s_end - s0) / steps if i + 1 < steps else s_end
+            after = self._converged_at(s)
             stepper = self.stepper_after if after else self.stepper_before
-            v0 = np.concatenate((self._w(Z[N:], u)[:-self.q], self._delayed(t)))
-            Zp = stepper.step(Z, v0, v0, t_next - t)
+            v0 = np.concatenate((self._w(Z[N:], u_at(s))[:-self.q], self._delayed(s)))
+            Zp = stepper.step(Z, v0, v0, s_next - s)
             if not math.isfinite(Zp.sum()):
                 return None
-            if self._converged_at(t_next) == after:
-                v1 = np.concatenate((self._w(Zp[N:], u)[:-self.q], self._delayed(t_next)))
-                Z = stepper.step(Z, v0, v1, t_next - t)
+            u_next = u_at(s_next)
+            if self._converged_at(s_next) == after:
+                v1 = np.concatenate((self._w(Zp[N:], u_next)[:-self.q], self._delayed(s_next)))
+                Z = stepper.step(Z, v0, v1, s_next - s)
             else:
                 Z = Zp
             if not math.isfinite(Z.sum()):
                 return None
             z = Z[:N]
-            w = self._w(Z[N:], u)
-            self.buffer.push(t_next, self.Md @ z, self.MdA @ z + self.MdB @ w)
-            t = t_next
+            w = self._w(Z[N:], u_next)
+            self.buffer.push(s_next, self.Md @ z, self.MdA @ z + self.MdB @ w)
+            s = s_next
         z, omega = Z[:N], Z[N:]
-        xi_e = self._xi_e_sampled(t_end, z, omega)
+        xi_e = self._xi_e_sampled(s_end, z, omega)
         if not math.isfinite(xi_e.sum()):
             return None
         return z, omega, xi_e

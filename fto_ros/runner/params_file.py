@@ -79,7 +79,7 @@ def _blocks(doc: Any, p: Path) -> dict[str, dict]:
     for key, block in doc.items():
         name = str(key).strip("/")
         if not isinstance(block, dict) or not isinstance(block.get("ros__parameters"), dict):
-            raise ConfigError("params file", f"{p}: the block '{short(key)}' needs a "
+            raise ConfigError("params file", f"{p}: the block {short(key)} needs a "
                               "'ros__parameters' mapping")
         blocks[name] = block["ros__parameters"]
     check_list_types(doc)

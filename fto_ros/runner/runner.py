@@ -2,10 +2,21 @@
 
 The live node and the replay harness both call ``set_input`` / ``process`` /
 ``status`` here, so replaying a bag in CI exercises exactly what the node does
-on live topics.  The runner validates each sample (finite, right length,
-stamps increasing, input present and fresh), restarts the observer on time
-jumps and long gaps, never lets a non-finite value out, counts everything
-with its reason and builds the outputs and the diagnostics.  ROS-free.
+on live topics.  The runner is the one owner of time and validity:
+
+- it checks every sample once (a sequence of the right length of finite numbers,
+  within the plausibility limits; a stamp that is finite and representable as a ROS
+  time, 0 <= t < 2^31 s; an input present and fresh);
+- it classifies every interval (timeline.py): a step the observer bridges, a
+  rejected stamp, or a discontinuity confirmed by the next sample before the
+  observer is restarted once;
+- it gates outliers before the observer sees them (gate.py);
+- it restarts the observer on a failure (an exception, a non-finite or implausible
+  estimate) and never lets a non-finite value out;
+- it counts everything with its reason and builds the outputs and the diagnostics,
+  whose level describes the recent past (health.py).
+
+ROS-free.
 """
 from __future__ import annotations
 
@@ -18,14 +29,25 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..core.errors import ConfigError
-from ..observers.base import Observer, SampleRejected
+from ..observers.base import Observer, SampleRejected, check_vector
 from . import settings as S
+from .gate import OutlierGate, channel_limits, exceeds
+from .health import FAILURES, HealthWindow
+from .timeline import CONFIRM, FIRST, HOLD, REJECT, STEP, Held, classify
 
 OK, WARN, ERROR = 0, 1, 2
 LEVEL_NAMES = {OK: "OK", WARN: "WARN", ERROR: "ERROR"}
 
 #: order of the values on the ``convergence`` topic
 CONVERGENCE_FIELDS = ("time_since_start", "output_residual", "converged", "guaranteed_time", "health")
+
+#: stamps must fit a builtin_interfaces/Time (int32 seconds) and not be negative
+MAX_STAMP = float(2 ** 31)
+#: what ``process`` returns for a sample held at a time discontinuity (not a rejection:
+#: it is used once the next sample confirms the jump)
+HELD = "held_at_time_jump"
+#: inputs kept while a sample is held (replayed when the next sample confirms the jump)
+MAX_HELD_INPUTS = 10000
 
 
 @dataclass
@@ -57,18 +79,30 @@ class Runner:
         self.accepted = 0
         self.rejected: Counter[str] = Counter()
         self.resets: Counter[str] = Counter()
+        self.rebases = 0
         self._update_us: deque[float] = deque(maxlen=2000)
-        self._window_accepted = 0
-        self._window_rejected = 0
+        self._health = HealthWindow(self.settings["diagnostics.window"])
         self._window_start: float | None = None
-        self._u: np.ndarray | None = np.zeros(0) if obs.n_inputs == 0 else None
+        self._window_accepted = 0
+        self._u: np.ndarray | None = self._no_input()
         self._t_input: float | None = None
         self._t_last: float | None = None
         self._t0: float | None = None
+        self._held: Held | None = None
         self._last_output: Output | None = None
         self.last_rejection: str | None = None
         self.last_error: str | None = None
+        self._configure()
+
+    def _configure(self) -> None:
+        """Everything derived from the settings and the observer's dimensions."""
+        s, obs = self.settings, self.observer
+        self._y_limits = channel_limits(s["limits.measurement"], obs.n_outputs, "limits.measurement")
+        self._u_limits = channel_limits(s["limits.input"], obs.n_inputs, "limits.input") \
+            if obs.n_inputs else np.zeros(0)
+        self._gate = OutlierGate(s, obs.n_outputs)
         self._js = self._joint_state_mapping()
+        self._health.window = s["diagnostics.window"]
 
     # -- configuration ------------------------------------------------------
     @property
@@ -85,94 +119,129 @@ class Runner:
         if new.observer_type != self.observer_type:
             raise ConfigError("observer.type", "cannot be changed at run time; restart the node")
         self.settings, self.observer_config, self.observer = new.settings, new.observer_config, new.observer
-        self._js = new._js
+        self._configure()
         self.reset("reconfigure")
 
     # -- inputs -------------------------------------------------------------
     def set_input(self, t: float, u) -> str | None:
         """Store the known input u valid from time t on.  Returns a rejection reason or None."""
-        reason = self._check_vector(u, self.observer.n_inputs, "input")
-        if reason is None and not math.isfinite(t):
+        obs = self.observer
+        reason = check_vector(u, obs.n_inputs, "input")
+        if reason is None and exceeds(u, self._u_limits):
+            reason = "input_implausible"
+        if reason is None and not (0.0 <= t < MAX_STAMP):
             reason = "input_bad_stamp"
         if reason is not None:
             self._reject(reason)
             return reason
         self._u = np.array(u, dtype=float)
         self._t_input = t
+        if self._held is not None and len(self._held.inputs) < MAX_HELD_INPUTS:
+            self._held.inputs.append((t, self._u))
         # observers that predict between sparse measurements (single_delay, sampled form)
-        # integrate up to each input change, so a fast input is applied when it changes
-        advance = getattr(self.observer, "advance", None)
-        if advance is not None and self._t0 is not None and self._t_last is not None and t >= self._t_last:
+        # integrate up to each input change, so a fast input is applied when it changes;
+        # only within a step they can bridge (a longer silence is a gap: restart later)
+        advance = getattr(obs, "advance", None)
+        if advance is not None and self._t0 is not None and self._t_last is not None \
+                and 0.0 <= t - self._t_last <= self._step_limit():
             try:
                 advance(t, self._u)
             except SampleRejected as exc:
                 self._reject(exc.reason)
                 return exc.reason
             except Exception as exc:  # noqa: BLE001  as in process(): restart, never a traceback
-                self.reset("observer_error")
-                self.last_error = f"{type(exc).__name__}: {exc}"
-                self._reject("observer_error")
-                return "observer_error"
+                return self._fail("observer_error", "observer_error", exc)
         return None
 
+    # -- measurements ------------------------------------------------------------
+    def _step_limit(self) -> float:
+        return min(self.settings["time.max_gap"], self.observer.max_step)
+
     def process(self, t: float, y) -> Output | str:
-        """Feed the measurement y taken at t.  Returns the Output, or the rejection reason."""
+        """Feed the measurement y taken at t.  Returns the Output, or why there is none:
+        a rejection reason (counted), or ``HELD`` (held at a time discontinuity until the
+        next sample confirms it)."""
         obs = self.observer
-        reason = self._check_vector(y, obs.n_outputs, "measurement")
-        if reason is None and not math.isfinite(t):
+        reason = check_vector(y, obs.n_outputs, "measurement")
+        if reason is None and exceeds(y, self._y_limits):
+            reason = "measurement_implausible"
+        if reason is None and not (0.0 <= t < MAX_STAMP):
             reason = "bad_stamp"
-        if reason is None and self._u is None:
-            reason = "missing_input"
-        if reason is None and self._t_input is not None and t - self._t_input > self.settings["input.timeout"]:
-            reason = "stale_input"
-        if reason is None and self._t_last is not None:
-            dt = t - self._t_last
-            if dt == 0.0:
-                reason = "repeated_stamp"
-            elif dt < 0.0:
-                if self.settings["time.reset_on_jump"] and -dt > self.settings["time.jump_threshold"]:
-                    self.time_jump(t)
-                    if self._u is None:
-                        reason = "missing_input"
-                else:
-                    reason = "stamp_backwards"
-            elif dt > self.settings["time.max_gap"]:
-                self.reset("gap")
         if reason is not None:
             self._reject(reason)
             return reason
+        s = self.settings
+        verdict, detail = classify(t, self._t_last, self._held, self._step_limit(),
+                                   s["time.jump_threshold"], s["time.reset_on_jump"])
+        if verdict == REJECT:
+            self._reject(detail)
+            return detail
+        if verdict == HOLD:
+            if self._held is not None:
+                self._reject("stamp_jump_unconfirmed")
+            self._held = Held(t, list(y), self._u, self._t_input, detail)
+            return HELD
+        if verdict == CONFIRM:
+            held, self._held = self._held, None
+            self.reset(held.kind)
+            # the held sample starts the new run with the input that was current then, unless
+            # that input was stamped after it (the old timeline's, before a jump back); the
+            # inputs that came while it was held follow, as they would have
+            fresh = held.t_input is not None and held.t_input <= held.t
+            self._u, self._t_input = (held.u, held.t_input) if fresh else (self._no_input(), None)
+            self._sample(held.t, np.array(held.y, dtype=float))
+            for t_in, u_in in held.inputs:
+                if held.t <= t_in <= t:
+                    self.set_input(t_in, u_in)
+        elif self._held is not None:                 # the old timeline goes on: it was junk
+            self._held = None
+            self._reject("stamp_jump_unconfirmed")
+        if verdict == STEP:
+            outcome = self._gate.check(t, np.asarray(y, dtype=float), self.state_name() == "converged")
+            if outcome == "outlier":
+                self._reject("outlier")
+                return "outlier"
+            if outcome == "rebase":
+                self.rebases += 1
+                self._health.count("rebase")
+        return self._sample(t, np.array(y, dtype=float))
 
-        y = np.array(y, dtype=float)
+    def _sample(self, t: float, y: np.ndarray) -> Output | str:
+        """Hand a classified sample to the observer; the Output or a rejection reason."""
+        obs = self.observer
+        if self._u is None:
+            reason = "missing_input"
+        elif self._t_input is not None and t - self._t_input > self.settings["input.timeout"]:
+            reason = "stale_input"
+        else:
+            reason = None
+        if reason is not None:
+            self._reject(reason)
+            return reason
         start = time.perf_counter()
         first = self._t0 is None
         try:
             if first:
                 x0 = self.settings["observer.initial_estimate"] or None
                 obs.reset(t, None if x0 is None else np.array(x0))
-            obs.update(t, y, self._u)
+            obs.update_checked(t, y, self._u)
         except SampleRejected as exc:
-            if first:
-                self._t0 = None
             self._reject(exc.reason)
             return exc.reason
         except Exception as exc:  # noqa: BLE001  last line of defence: never a traceback
             # an observer bug: its state cannot be trusted any more, so restart it
-            self.reset("observer_error")
-            self.last_error = f"{type(exc).__name__}: {exc}"
-            self._reject("observer_error")
-            return "observer_error"
+            return self._fail("observer_error", "observer_error", exc)
         self._update_us.append((time.perf_counter() - start) * 1e6)
         if first:
             self._t0 = t
         self._t_last = t
-
-        out = self._build_output(t)
-        if out is None:  # the observer let a non-finite value through: never publish it
-            self.reset("non_finite_state")
-            self._reject("non_finite_estimate")
-            return "non_finite_estimate"
+        out, problem = self._build_output(t)
+        if problem is not None:  # never publish a non-finite or absurd estimate
+            return self._fail(*problem)
+        self._gate.accepted(t, y)
         self.accepted += 1
         self._window_accepted += 1
+        self._health.count("accepted")
         self._last_output = out
         return out
 
@@ -182,28 +251,53 @@ class Runner:
         return self._t_last
 
     def time_jump(self, t: float) -> None:
-        """Time went back to t (bag loop, sim time reset): restart, and forget an input
-        stamped after t, which belongs to the old timeline."""
+        """Time went back to t (bag loop, sim time reset, told by the node's clock): restart
+        at once, and forget an input stamped after t, which belongs to the old timeline."""
+        self._held = None
         self.reset("time_jump")
-        if self.observer.n_inputs and self._t_input is not None and self._t_input > t:
-            self._u = self._t_input = None
+        if self._t_input is not None and self._t_input > t:
+            self._u, self._t_input = self._no_input(), None
+
+    def _no_input(self) -> np.ndarray | None:
+        """The input before any arrived: none needed (empty) or missing (None)."""
+        return np.zeros(0) if self.observer.n_inputs == 0 else None
 
     def reset(self, reason: str = "service") -> None:
-        """Restart the observer at the next sample (counted under ``reason``)."""
+        """Restart the observer at the next sample (counted under ``reason``).  A reset
+        requested by a person (``service``, ``enable``, ``reconfigure``) also clears the
+        health window: the diagnostics level starts afresh."""
         self.resets[reason] += 1
         self._t0 = None
         self._t_last = None
+        self._gate.clear()
+        if reason in ("service", "enable", "reconfigure"):
+            self._health.clear()
+            self.last_error = None
+        else:
+            self._health.count(reason)
 
+    def _fail(self, restart: str, rejection: str, exc: BaseException | None = None) -> str:
+        """The observer failed on a sample: restart it, count the sample; the rejection."""
+        self.reset(restart)
+        if exc is not None:
+            self.last_error = f"{type(exc).__name__}: {' '.join(str(exc).split())[:200]}"
+        self._reject(rejection)
+        return rejection
 
     # -- outputs ------------------------------------------------------------
-    def _build_output(self, t: float) -> Output | None:
+    def _build_output(self, t: float) -> tuple[Output | None, tuple[str, str] | None]:
+        """(Output, None), or (None, (restart reason, rejection reason)) when the estimate
+        is not finite or beyond ``limits.estimate``."""
         obs = self.observer
         x = np.array(obs.estimate, dtype=float)
         ui = obs.unknown_input
         ui = None if ui is None else np.array(ui, dtype=float)
         # one sum per vector: a NaN or Inf anywhere makes it non-finite
         if not math.isfinite(x.sum()) or (ui is not None and not math.isfinite(ui.sum())):
-            return None
+            return None, ("non_finite_state", "non_finite_estimate")
+        limit = self.settings["limits.estimate"]
+        if np.max(np.abs(x)) > limit or (ui is not None and ui.size and np.max(np.abs(ui)) > limit):
+            return None, ("estimate_implausible", "estimate_implausible")
         since = t - self._t0
         gt = obs.guaranteed_time
         res = obs.output_residual
@@ -217,7 +311,7 @@ class Runner:
         if self._js is not None:
             names, idx = self._js
             js = (names,) + tuple([float(x[i]) for i in ix] if ix is not None else [] for ix in idx)
-        return Output(t, x, ui, conv, js)
+        return Output(t, x, ui, conv, js), None
 
     def _joint_state_mapping(self):
         names = self.settings["estimated_joint_states.joint_names"]
@@ -257,13 +351,12 @@ class Runner:
         return float(np.percentile(a, 50)), float(np.percentile(a, 99))
 
     def status(self, now: float | None = None) -> Status:
-        """The diagnostics status, rates over the window since the previous call.
-
-        ``now`` is the caller's clock (node: ROS time; replay: sample time).
-        """
-        obs = self.observer
+        """The diagnostics status; the level from the last ``diagnostics.window`` seconds
+        of ``now`` (the caller's clock: node ROS time, replay sample time), see health.py."""
+        obs, s = self.observer, self.settings
         state = self.state_name()
         out = self._last_output
+        recent = self._health.close(now)
         values: list[tuple[str, str]] = [("observer", obs.TYPE), ("state", state)]
         level, problems = OK, []
         if out is not None:
@@ -275,6 +368,8 @@ class Runner:
                    ("samples rejected", str(sum(self.rejected.values())))]
         values += [(f"rejected: {k}", str(v)) for k, v in sorted(self.rejected.items())]
         values += [(f"restarts: {k}", str(v)) for k, v in sorted(self.resets.items())]
+        values.append(("outlier gate", self._gate.summary()
+                       + (f"; re-based {self.rebases} time(s)" if self.rebases else "")))
         if obs.n_inputs:
             age = (now - self._t_input) if (now is not None and self._t_input is not None) else None
             values.append(("input age (s)", "never received" if self._t_input is None else
@@ -284,47 +379,46 @@ class Runner:
         if now is not None and self._window_start is not None and now > self._window_start:
             rate = self._window_accepted / (now - self._window_start)
             values.append(("measurement rate (Hz)", f"{rate:.1f}"))
-            exp = self.settings["diagnostics.expected_rate"]
+            exp = s["diagnostics.expected_rate"]
             if exp > 0:
                 values.append(("expected rate (Hz)", f"{exp:.1f}"))
                 if rate < 0.8 * exp:
-                    level, problems = WARN, problems + [f"rate {rate:.0f} Hz below expected {exp:.0f} Hz"]
+                    level = WARN
+                    problems.append(f"rate {rate:.0f} Hz below expected {exp:.0f} Hz")
         values += [(k, str(v)) for k, v in obs.diagnostics().items()]
-        if self._window_rejected:
+        window = f"last {s['diagnostics.window']:g} s"
+        values.append((f"rejected ({window})", str(recent.get("rejected", 0))))
+        failures = sum(recent.get(r, 0) for r in FAILURES)
+        values.append((f"observer failures ({window})", str(failures)))
+        if recent.get("rejected"):
             level = WARN
-            problems.append(f"{self._window_rejected} sample(s) rejected (last: {self.last_rejection})")
+            problems.append(f"{recent['rejected']} sample(s) rejected in the {window} "
+                            f"(last: {self.last_rejection})")
+        if recent.get("rebase"):
+            level = WARN
+            problems.append("the outlier gate accepted a persisting change of the signal")
         if state == "diverging":
             level = WARN
             problems.append("output residual above convergence.residual_threshold after the guaranteed time")
         if state == "waiting":
-            level = max(level, WARN)
+            level = WARN
             problems.append("no accepted measurement yet" if self.accepted == 0 else "restarted, waiting for a sample")
+        idle = self._health.idle_for(now)
+        if self.accepted and idle > s["diagnostics.stale_after"]:
+            level = WARN
+            problems.append(f"no measurement accepted for {idle:.1f} s")
         if self.last_error:
             values.append(("last observer error", self.last_error))
-        if self.resets.get("non_finite_state") or self.resets.get("observer_error"):
+        if failures:
             level = ERROR
-            problems.append("the observer failed (non-finite values or an internal error) and was restarted")
+            problems.append(f"the observer failed (non-finite or implausible values, or an internal "
+                            f"error) and was restarted in the {window}")
         self._window_start = now
-        self._window_accepted = self._window_rejected = 0
+        self._window_accepted = 0
         message = state if not problems else f"{state}: " + "; ".join(problems)
         return Status(level, message, values)
 
     # -- helpers ------------------------------------------------------------
-    def _check_vector(self, v, n: int, what: str) -> str | None:
-        try:
-            length = len(v)
-        except TypeError:
-            return f"{what}_not_an_array"
-        if length != n:
-            return f"{what}_wrong_length"
-        try:
-            for x in v:
-                if not math.isfinite(x):
-                    return f"{what}_non_finite"
-        except TypeError:
-            return f"{what}_not_numeric"
-        return None
-
     def reject(self, reason: str) -> None:
         """Count a sample the caller refused before it reached the runner (e.g. a
         JointState without the configured joint, a future stamp)."""
@@ -332,5 +426,5 @@ class Runner:
 
     def _reject(self, reason: str) -> None:
         self.rejected[reason] += 1
-        self._window_rejected += 1
+        self._health.count("rejected")
         self.last_rejection = reason

@@ -6,7 +6,6 @@ both and a typo is refused the same way by both.  ROS-free.
 """
 from __future__ import annotations
 
-import math
 from typing import Any, Mapping
 
 from ..core.errors import ConfigError
@@ -45,19 +44,48 @@ SETTINGS: tuple[Param, ...] = (
     Param("estimated_joint_states.effort_states", "int_array", [],
           "per joint, the state index giving its effort (-1: none)", min=-1),
     Param("input.timeout", "double", 0.5, "a sample whose latest input is older than this (s) is "
-          "rejected as 'stale_input'", min=1e-6, read_only=False),
-    Param("time.max_gap", "double", 0.5, "a gap between samples longer than this (s) restarts the "
-          "observer at the new sample", min=1e-6, read_only=False),
+          "rejected as 'stale_input'", gt=0.0, read_only=False),
+    Param("time.max_gap", "double", 0.5, "a gap between samples longer than this (s), or longer "
+          "than the observer bridges, restarts the observer at the new sample (once the next "
+          "sample confirms it)", gt=0.0, max=1e6, read_only=False),
     Param("time.reset_on_jump", "bool", True, "restart the observer when time jumps backwards by more "
-          "than time.jump_threshold (bag looping, sim time reset); else such samples are rejected",
-          read_only=False),
+          "than time.jump_threshold (bag looping, sim time reset; confirmed by the next sample); "
+          "else such samples are rejected", read_only=False),
     Param("time.jump_threshold", "double", 0.5, "backward jump (s) treated as a time reset",
-          min=0.0, read_only=False),
+          min=0.0, max=1e6, read_only=False),
     Param("time.future_tolerance", "double", 0.5, "node only: JointState stamps further than this (s) "
           "ahead of the node clock are rejected as 'future_stamp'", min=0.0, read_only=False),
+    Param("limits.measurement", "double_array", [1e12], "plausibility: a measurement with |y_i| "
+          "above this is rejected as 'measurement_implausible' (one value for every output, or "
+          "one per output)", gt=0.0, read_only=False),
+    Param("limits.input", "double_array", [1e12], "plausibility: an input with |u_i| above this is "
+          "rejected as 'input_implausible' (one value, or one per input)", gt=0.0, read_only=False),
+    Param("limits.estimate", "double", 1e15, "an estimate with an element beyond +-this restarts the "
+          "observer ('estimate_implausible') and is not published", gt=0.0, read_only=False),
+    Param("outlier.threshold", "double", 20.0, "outlier gate: once converged, reject a measurement "
+          "whose innovation (against the extrapolation of the last two accepted ones) exceeds this "
+          "many times its recent RMS, as 'outlier' (0: gate off)", min=0.0, read_only=False),
+    Param("outlier.window", "int", 200, "outlier gate: samples over which the innovation RMS is "
+          "averaged (exponentially); the gate acts after a quarter of it", min=4, max=1000000,
+          read_only=False),
+    Param("outlier.confirm", "int", 3, "outlier gate: this many consecutive rejected samples that "
+          "continue each other are a real change of the signal: accepted, the gate re-bases",
+          min=3, max=1000, read_only=False),
+    Param("outlier.max_consecutive", "int", 100, "outlier gate: after this many rejections in a row "
+          "the gate re-bases anyway (never locks the observer out)", min=3, max=1000000,
+          read_only=False),
+    Param("outlier.min_scale", "double_array", [0.0], "outlier gate: floor of the innovation RMS "
+          "(units of y; one value, or one per output), e.g. the sensor resolution", min=0.0,
+          read_only=False),
     Param("convergence.residual_threshold", "double", 0.1, "after the guaranteed time, an output "
           "residual above this (units of y) reports 'diverging'", min=0.0, read_only=False),
-    Param("diagnostics.period", "double", 1.0, "node only: /diagnostics period (s)", min=0.01),
+    Param("diagnostics.period", "double", 1.0, "node only: /diagnostics period (s)", min=0.01,
+          max=3600.0),
+    Param("diagnostics.window", "double", 10.0, "the /diagnostics level describes the last this "
+          "many seconds: an ERROR (observer failure) or WARN (rejections) clears once that long "
+          "has passed cleanly; ~/reset clears it at once", gt=0.0, read_only=False),
+    Param("diagnostics.stale_after", "double", 1.0, "WARN when no measurement was accepted for this "
+          "long (s) (a stalled publisher)", gt=0.0, read_only=False),
     Param("diagnostics.expected_rate", "double", 0.0, "expected measurement rate (Hz) for the rate "
           "check; 0 disables it", min=0.0, read_only=False),
     Param("diagnostics.hardware_id", "string", "", "node only: hardware_id in /diagnostics"),
@@ -119,5 +147,3 @@ def check_settings(settings: Mapping[str, Any], n_states: int, n_outputs: int, n
         bad = [i for i in idx if i >= n_states]
         if bad:
             raise ConfigError(key, f"state index {bad[0]} out of range (n = {n_states})")
-    if not math.isfinite(settings["time.max_gap"]):
-        raise ConfigError("time.max_gap", "must be finite")
