@@ -236,3 +236,46 @@ def test_domain_errors_give_nan_tuples(texts, y):
     good = f((0.5, 2.0), U)
     assert all(math.isfinite(v) for v in good)
     assert good[1] == 2.0
+
+
+# -- what the parser cannot evaluate safely: refused quickly, in one line -------------------------
+@pytest.mark.parametrize("text,words", [
+    ("9**9**9**9", ("towers",)),
+    ("10**10**10", ("towers",)),
+    ("y0**y1**2", ("towers",)),
+    ("2^3^4", ("towers",)),
+    ("9**99999999", ("exponent", "too large")),
+    ("10.0**400", ("beyond double range",)),
+    ("1/0", ("non-finite",)),
+    ("y0 + 1/0", ("non-finite",)),
+    ("log(0)*y0", ("non-finite",)),
+    ("Rational(1, 0)", ("unknown function", "Rational")),
+    ("Symbol('x')", ("unknown function", "Symbol")),
+    ("1e309", ("not finite",)),
+    ("y0 + exp(1000)", ("not a finite real",)),
+    ("sqrt(-1)*y0", ("not a finite real",)),
+    ("+".join(["y0"] * 20000), ("too long",)),
+    ("(" * 500 + "y0" + ")" * 500, ()),
+    ("9^9^9^9", ("towers",)),
+    ("2**3^4", ("towers",)),
+    ("+".join(f"y{i % 2}*{i}" for i in range(300)), ("too large",)),
+])
+def test_unsafe_or_non_finite_expressions_are_refused_quickly(text, words):
+    import time
+    t0 = time.perf_counter()
+    msg = check_refused(["0", text], "luenberger.F[1]", *words)
+    # one line, bounded: a 100,000-character text never comes back whole
+    assert "\n" not in msg and len(msg) < 800
+    assert time.perf_counter() - t0 < 30      # a hang check only (a refusal takes ms)
+
+
+def test_a_huge_text_gives_a_short_message():
+    msg = check_refused(["y0 + " * 20000 + "1"], "luenberger.F[0]", "too long")
+    assert len(msg) < 300
+
+
+def test_big_but_reasonable_expressions_still_work():
+    f = make(["y0**1000", "+".join(f"{i}*y0**2" for i in range(60)), "2**0.5*y1", "10**-3*u0"])
+    out = f((0.5, 2.0), (4.0,))
+    assert out[0] == pytest.approx(0.5 ** 1000)
+    assert out[2] == pytest.approx(2 ** 0.5 * 2.0) and out[3] == pytest.approx(4e-3)

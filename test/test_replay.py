@@ -377,7 +377,11 @@ def test_all_samples_rejected(sim, tmp_path):
             bag.float_array(f"{NS}/input", k * 10**6, [1.0])
             bag.float_array(f"{NS}/measured_output", k * 10**6, [1.0, 2.0])
             bag.float_array(f"{NS}/true_state", k * 10**6, [0.0, 0.0, 0.0])
-    m = replay(path, LUENBERGER, tmp_path / "out", progress=False)
+    # a replay that accepts nothing fails, after writing what it has (to look at)
+    with pytest.raises(ReplayError, match=r"no sample accepted of 50 \(rejected: "
+                                          r"measurement_wrong_length: 50\)"):
+        replay(path, LUENBERGER, tmp_path / "out", progress=False)
+    m = json.loads((tmp_path / "out" / "metrics.json").read_text())
     assert m["samples_accepted"] == 0
     assert m["rejected_by_reason"] == {"measurement_wrong_length": 50}
     assert m["errors"] is None and "no accepted samples" in m["errors_note"]
@@ -462,7 +466,7 @@ def test_cli_not_a_bag(tmp_path, capsys):
 
 def test_cli_missing_params(bag, tmp_path, capsys):
     rc, _, err = _cli(capsys, bag, "--params", tmp_path / "none.yaml", "--out", tmp_path / "o")
-    assert rc == 1
+    assert rc == 2                          # bad parameters (the node exits 2 for them too)
     assert "none.yaml" in _one_error_line(err)
 
 
@@ -472,7 +476,7 @@ def test_cli_unknown_parameter(bag, tmp_path, capsys):
     params = tmp_path / "typo.yaml"
     params.write_text(yaml.safe_dump(doc))
     rc, _, err = _cli(capsys, bag, "--params", params, "--out", tmp_path / "o")
-    assert rc == 1
+    assert rc == 2
     line = _one_error_line(err)
     assert "luenberger.polse" in line and "unknown parameter" in line
 

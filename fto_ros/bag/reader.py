@@ -57,7 +57,7 @@ def jazzy_typestore():
 
 
 def _describe(err: BaseException) -> str:
-    text = str(err).strip() or type(err).__name__
+    text = " ".join(str(err)[:400].split()) or type(err).__name__
     return f"{text} ({type(err).__name__})"
 
 
@@ -205,7 +205,12 @@ class BagReader:
                     raise BagError(f"{self.path}: topic {topic}: unknown message type "
                                    f"{conn.msgtype} (not in ROS 2 Jazzy and not defined "
                                    f"in the bag)")
-                yield topic, t_ns, deserialize(raw, conn.msgtype)
+                try:
+                    msg = deserialize(raw, conn.msgtype)
+                except Exception as err:  # SerdeError, struct.error, IndexError ...
+                    raise BagError(f"{self.path}: topic {topic}: cannot decode the message at "
+                                   f"log time {t_ns} ns as {conn.msgtype}: {_describe(err)}") from None
+                yield topic, t_ns, msg
         except BagError:
             raise
         except GeneratorExit:

@@ -10,13 +10,14 @@ microseconds per call, no numpy allocation).
 from __future__ import annotations
 
 import ast
+import math
 from typing import Callable, Sequence
 
 import sympy
 from sympy.parsing.sympy_parser import (convert_xor, parse_expr,
                                         standard_transformations)
 
-from .errors import ConfigError
+from .errors import ConfigError, short
 
 #: functions a model expression may call
 FUNCTIONS = {name: getattr(sympy, name) for name in (
@@ -41,31 +42,130 @@ _NODES = (ast.Expression, ast.BinOp, ast.UnaryOp, ast.Call, ast.Name, ast.Load, 
           ast.Tuple, ast.Compare, ast.Lt, ast.Gt, ast.LtE, ast.GtE)
 
 
-def _check_syntax(text: str, parameter: str) -> None:
-    """Refuse anything but arithmetic on names and numbers, BEFORE sympy evaluates it.
+#: an expression longer than this (characters), with more AST nodes, or nested deeper, is
+#: refused before anything evaluates it (a model term is a line, not a program)
+MAX_CHARS = 2000
+MAX_NODES = 600
+MAX_DEPTH = 200
+#: a literal exponent may not exceed this in magnitude (y0**1000 is fine, 9**99999999 is not)
+MAX_EXPONENT = 1000.0
 
-    sympy's parser runs the text as Python: attribute access, subscripts,
-    lambdas, comparisons or boolean operators could reach the interpreter or be
-    silently mis-read, so they are refused here.
+
+def _literal(node: ast.AST) -> float | None:
+    """The value of a numeric literal, possibly signed; None for anything else."""
+    sign = 1.0
+    while isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd)):
+        sign = -sign if isinstance(node.op, ast.USub) else sign
+        node = node.operand
+    if isinstance(node, ast.Constant) and isinstance(node.value, (int, float)) \
+            and not isinstance(node.value, bool):
+        try:
+            return sign * float(node.value)
+        except OverflowError:
+            return math.inf
+    return None
+
+
+def _check_syntax(text: str, parameter: str) -> None:
+    """Refuse anything but bounded arithmetic on names and numbers, BEFORE sympy evaluates it.
+
+    sympy's parser runs the text as Python: attribute access, subscripts, lambdas,
+    comparisons or boolean operators could reach the interpreter or be silently mis-read;
+    exponent towers (10**10**10) and huge literal exponents make it compute numbers with
+    billions of digits (a hang); a very long or deeply nested text makes it recurse
+    without end.  All are refused here, quickly, in one line.
     """
+    if len(text) > MAX_CHARS:
+        raise ConfigError(parameter, f"expression too long ({len(text)} characters; at most "
+                          f"{MAX_CHARS})")
     try:
         tree = ast.parse(text, mode="eval")
     except SyntaxError as exc:
-        raise ConfigError(parameter, f"cannot parse {text!r}: {exc.msg}") from None
-    for node in ast.walk(tree):
+        raise ConfigError(parameter, f"cannot parse {short(text)}: {exc.msg}") from None
+    except (RecursionError, MemoryError, ValueError):
+        raise ConfigError(parameter, f"expression nested too deeply (at most {MAX_DEPTH} "
+                          "levels)") from None
+    count = 0
+    stack = [(tree, 0)]
+    while stack:
+        node, depth = stack.pop()
+        count += 1
+        if count > MAX_NODES:
+            raise ConfigError(parameter, f"expression too large (more than {MAX_NODES} terms "
+                              "and operators)")
+        if depth > MAX_DEPTH:
+            raise ConfigError(parameter, f"expression nested too deeply (at most {MAX_DEPTH} "
+                              "levels)")
         if not isinstance(node, _NODES):
-            raise ConfigError(parameter, f"{text!r}: '{type(node).__name__}' is not allowed in a "
-                              "model expression (arithmetic, numbers, names and function calls only)")
-        if isinstance(node, ast.Constant) and not isinstance(node.value, (int, float)):
-            raise ConfigError(parameter, f"{text!r}: only numeric constants are allowed")
-        if isinstance(node, ast.Call) and (not isinstance(node.func, ast.Name) or node.keywords):
-            raise ConfigError(parameter, f"{text!r}: only plain calls like sin(y0) are allowed")
+            raise ConfigError(parameter, f"{short(text)}: '{type(node).__name__}' is not allowed "
+                              "in a model expression (arithmetic, numbers, names and function "
+                              "calls only)")
+        if isinstance(node, ast.Constant):
+            if not isinstance(node.value, (int, float)):          # (True: Piecewise's otherwise)
+                raise ConfigError(parameter, f"{short(text)}: only numeric constants are allowed")
+            if isinstance(node.value, float) and not math.isfinite(node.value):
+                raise ConfigError(parameter, f"{short(text)}: the constant {node.value} is not "
+                                  "finite")
+        if isinstance(node, ast.Call):
+            if not isinstance(node.func, ast.Name) or node.keywords:
+                raise ConfigError(parameter, f"{short(text)}: only plain calls like sin(y0) are "
+                                  "allowed")
+            if node.func.id not in FUNCTIONS:
+                raise ConfigError(parameter, f"{short(text)} calls unknown function(s) "
+                                  f"{node.func.id}; allowed: {', '.join(sorted(FUNCTIONS))}")
+        if isinstance(node, ast.BinOp) and isinstance(node.op, (ast.Pow, ast.BitXor)):
+            _check_power(node, text, parameter)
+        stack.extend((child, depth + 1) for child in ast.iter_child_nodes(node))
+
+
+def _is_power(node: ast.AST) -> bool:
+    return isinstance(node, ast.BinOp) and isinstance(node.op, (ast.Pow, ast.BitXor))
+
+
+def _check_power(node: ast.BinOp, text: str, parameter: str) -> None:
+    # '^' becomes '**' token by token, so a^b^c is read as a**(b**c): a tower too
+    if any(_is_power(n) for n in ast.walk(node.right)) or (
+            isinstance(node.op, ast.BitXor) and _is_power(node.left)):
+        raise ConfigError(parameter, f"{short(text)}: exponent towers (a**b**c) are not allowed")
+    exponent = _literal(node.right)
+    if exponent is None:
+        return          # an exponent with names: evaluated per sample, overflow is rejected there
+    if abs(exponent) > MAX_EXPONENT:
+        raise ConfigError(parameter, f"{short(text)}: the exponent {exponent:g} is too large "
+                          f"(at most {MAX_EXPONENT:g} in magnitude)")
+    base = _literal(node.left)
+    if base is not None and base != 0 and abs(exponent) * math.log10(abs(base)) > 300:
+        raise ConfigError(parameter, f"{short(text)}: the constant {short(base)}**{exponent:g} "
+                          "is beyond double range")
+
+
+def _check_finite_constants(expr: sympy.Expr, text: str, parameter: str) -> None:
+    """Every constant part of expr (a subtree without symbols) must be a finite real number:
+    1/0, log(0), exp(1000), sqrt(-1) are refused, whatever else the expression holds."""
+    if expr.has(sympy.zoo, sympy.oo, -sympy.oo, sympy.nan):
+        raise ConfigError(parameter, f"{short(text)} has a non-finite constant (a division by "
+                          "zero, log(0), an infinity)")
+    walk = sympy.preorder_traversal(expr)
+    for node in walk:
+        if node.free_symbols or isinstance(node, (sympy.Tuple, sympy.logic.boolalg.Boolean)):
+            continue
+        walk.skip()
+        if isinstance(node, sympy.Number) and node.is_finite:
+            continue
+        try:
+            value = complex(node.evalf(20))
+        except (TypeError, ValueError, OverflowError, ZeroDivisionError):
+            value = complex(math.nan)
+        if value.imag != 0 or not math.isfinite(value.real):
+            raise ConfigError(parameter, f"{short(text)}: its constant part {short(str(node))} "
+                              f"is not a finite real number")
 
 
 def parse(text: str, allowed: Sequence[sympy.Symbol], parameter: str) -> sympy.Expr:
     """Parse ``text`` as an expression in ``allowed`` symbols, or raise ConfigError."""
     if not isinstance(text, str) or not text.strip():
-        raise ConfigError(parameter, "empty expression")
+        raise ConfigError(parameter, "empty expression" if isinstance(text, str) or text is None
+                          else f"expected an expression (text), got {short(text)}")
     _check_syntax(text.strip(), parameter)
     local = {s.name: s for s in allowed}
     local.update(FUNCTIONS)
@@ -74,17 +174,19 @@ def parse(text: str, allowed: Sequence[sympy.Symbol], parameter: str) -> sympy.E
         expr = parse_expr(text, local_dict=local, global_dict={"__builtins__": {}, **_sympy_atoms()},
                           transformations=_TRANSFORMS, evaluate=True)
     except Exception as exc:  # sympy raises many kinds on malformed text
-        raise ConfigError(parameter, f"cannot parse {text!r}: {exc.__class__.__name__}: {exc}") from None
+        raise ConfigError(parameter, f"cannot parse {short(text)}: {exc.__class__.__name__}: "
+                          f"{short(exc)}") from None
     if not isinstance(expr, sympy.Expr):
-        raise ConfigError(parameter, f"{text!r} is not a scalar expression")
+        raise ConfigError(parameter, f"{short(text)} is not a scalar expression")
     unknown = sorted(s.name for s in expr.free_symbols if s not in set(allowed))
     if unknown:
-        raise ConfigError(parameter, f"{text!r} uses unknown name(s) {', '.join(unknown)}; "
+        raise ConfigError(parameter, f"{short(text)} uses unknown name(s) {', '.join(unknown)}; "
                           f"allowed: {', '.join(s.name for s in allowed) or 'none'}")
     bad = sorted({type(f).__name__ for f in expr.atoms(sympy.Function)
                   if type(f) not in set(FUNCTIONS.values())})
     if bad:
-        raise ConfigError(parameter, f"{text!r} calls unknown function(s) {', '.join(bad)}")
+        raise ConfigError(parameter, f"{short(text)} calls unknown function(s) {', '.join(bad)}")
+    _check_finite_constants(expr, text, parameter)
     return expr
 
 

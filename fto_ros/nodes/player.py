@@ -19,13 +19,15 @@ a subscriber (at most TIMEOUT s), so the first samples are not lost to discovery
 ``--loop`` replays the bag again and again: the log times (and /clock) jump back at
 every restart, which the observer node detects and counts as one 'time_jump' restart.
 
-Exit status: 0 when the bag has been played (or on Ctrl-C), 1 for a missing or
-unreadable bag or bad arguments.
+Exit status (the fto_ros contract): 0 when the bag has been played (or on Ctrl-C),
+2 for bad arguments (a usage error, a topic the bag does not have or cannot play),
+1 for a missing or unreadable bag.
 """
 from __future__ import annotations
 
 import argparse
 import array
+import math
 import sys
 import time
 from typing import Any, Callable
@@ -162,15 +164,15 @@ def main(argv: list[str] | None = None) -> int:
         user_args = rclpy.utilities.remove_ros_args(args_all)[1:]
     except Exception as exc:
         print(f"fto-play: error: bad ROS arguments: {' '.join(str(exc).split())}", file=sys.stderr)
-        return 1
+        return 2
     ap = _parser()
     try:
         args = ap.parse_args(user_args)
-    except SystemExit as exc:  # --help (0) or a usage error (argparse says 2; we say 1)
-        return 0 if exc.code == 0 else 1
-    if not args.rate > 0:
-        print(f"fto-play: error: --rate must be > 0, got {args.rate}", file=sys.stderr)
-        return 1
+    except SystemExit as exc:  # --help (0) or a usage error (2, the fto_ros contract)
+        return 0 if exc.code == 0 else 2
+    if not (args.rate > 0 and math.isfinite(args.rate)):
+        print(f"fto-play: error: --rate must be a finite number > 0, got {args.rate}", file=sys.stderr)
+        return 2
 
     try:
         bag = BagReader(args.bag)
@@ -179,10 +181,10 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     try:
         chosen, notes = _select_topics(bag.topics, args.topics, args.clock)
-    except ValueError as exc:
+    except ValueError as exc:       # --topics names a topic the bag does not have
         bag.close()
         print(f"fto-play: error: {args.bag}: {exc}", file=sys.stderr)
-        return 1
+        return 2
     if not chosen:
         bag.close()
         print(f"fto-play: error: {args.bag}: nothing to play (no Float64MultiArray, JointState "

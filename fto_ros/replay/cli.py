@@ -1,9 +1,12 @@
 """``fto-replay BAG --params FILE --out OUT``: replay a bag offline, write outputs and metrics.
 
-Exit codes: 0 success, 1 the replay could not run (missing or malformed bag or
-params file, existing output, ...; one ``fto-replay: error: ...`` line on
-stderr, no traceback), 2 usage error, 130 interrupted.  Set ``FTO_DEBUG=1``
-to get the traceback of an unexpected error.
+Exit codes (the same contract as every fto_ros command): 0 done; 2 bad parameters
+or arguments (a params file or a value the schema refuses, a usage error); 1 a bad
+bag or a runtime failure (missing, corrupt or undecodable bag, a topic missing,
+an existing output, a replay that accepted no sample or fewer than
+``--min-accepted`` of them); 130 interrupted.  Always one ``fto-replay: error:
+...`` line on stderr, never a traceback; ``FTO_DEBUG=1`` shows the traceback of
+an unexpected error.
 """
 from __future__ import annotations
 
@@ -11,13 +14,13 @@ import argparse
 import os
 import sys
 
-from ..cli.args import non_negative_float, positive_float
+from ..cli.args import fraction, non_negative_float, positive_float
 
 PROG = "fto-replay"
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .replay import DEFAULT_NODE_NAME, DEFAULT_TOLERANCE
+    from .replay import DEFAULT_MIN_ACCEPTED, DEFAULT_NODE_NAME, DEFAULT_TOLERANCE
     p = argparse.ArgumentParser(
         prog=PROG,
         description="Replay a rosbag2 bag through an fto_ros observer offline (no DDS), exactly "
@@ -43,6 +46,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="settle time (s after the observer starts) for the 'after settling' "
                         "errors (default: metrics.settle_time of the params file, else the "
                         "guaranteed time + 0.01 s, or 0.11 s without one)")
+    p.add_argument("--min-accepted", type=fraction, default=DEFAULT_MIN_ACCEPTED, metavar="F",
+                   help=f"fail (exit 1) when fewer than this fraction of the measurement samples "
+                        f"is accepted (default {DEFAULT_MIN_ACCEPTED:g}; a replay that accepts "
+                        f"none always fails)")
     p.add_argument("--tolerance", type=positive_float, default=DEFAULT_TOLERANCE, metavar="TOL",
                    help=f"error bound (state units) defining the measured convergence time "
                         f"(default {DEFAULT_TOLERANCE:g})")
@@ -50,8 +57,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def one_line(err: BaseException | str) -> str:
-    """An error message on one line (YAML and other parsers give several)."""
-    return " ".join(str(err).split())
+    """An error message on one line (YAML and other parsers give several), bounded."""
+    text = " ".join(str(err)[:4000].split())
+    return text if len(text) <= 1000 else text[:997] + "..."
 
 
 def _fmt(v, spec=".3g") -> str:
@@ -106,11 +114,15 @@ def main(argv=None) -> int:
         overrides = dict(parse_override(text) for text in args.set)
         metrics = replay(args.bag, args.params, args.out, node_name=args.node_name,
                          overwrite=args.overwrite, progress=not args.no_progress,
-                         after=args.after, tolerance=args.tolerance, overrides=overrides)
+                         after=args.after, tolerance=args.tolerance, overrides=overrides,
+                         min_accepted=args.min_accepted)
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted", file=sys.stderr)
         return 130
-    except (ConfigError, BagError, ReplayError, OSError) as err:
+    except ConfigError as err:
+        print(f"{PROG}: error: {one_line(err)}", file=sys.stderr)
+        return 2
+    except (BagError, ReplayError, OSError) as err:
         print(f"{PROG}: error: {one_line(err)}", file=sys.stderr)
         return 1
     except Exception as err:  # never a traceback for the user; FTO_DEBUG=1 shows it

@@ -53,6 +53,7 @@ import yaml
 
 from ..bag import BagError, BagReader, BagWriter
 from ..bag.reader import jazzy_typestore
+from ..core.errors import short
 from ..observers.base import Observer
 from ..runner.messages import joint_state_sample
 from ..runner.runner import CONVERGENCE_FIELDS, LEVEL_NAMES, Runner
@@ -64,6 +65,10 @@ JOINT_STATE = "sensor_msgs/msg/JointState"
 DEFAULT_NODE_NAME = "observer_node"
 DEFAULT_TOLERANCE = 1e-2
 METRICS_SCHEMA = "fto_ros/replay-metrics/1"
+#: log times from here on cannot be header stamps (int32 seconds)
+MAX_STAMP_NS = 2 ** 31 * 1_000_000_000
+#: a replay that accepts fewer than this fraction of its measurement samples fails (exit 1)
+DEFAULT_MIN_ACCEPTED = 0.5
 
 # event kinds; at equal log times they are processed in this order
 K_INPUT, K_MEAS, K_JOINT, K_TRUTH = 0, 1, 1, 2
@@ -309,13 +314,14 @@ def _f64_data_at(p) -> tuple[int, int]:
     return pos, count
 
 
-def decode_float_arrays(payloads: list, typestore) -> list:
+def decode_float_arrays(payloads: list, typestore, where: str = "Float64MultiArray") -> list:
     """The ``data`` of raw CDR Float64MultiArray payloads, as lists of floats.
 
     In bulk with numpy when every payload has the same length and the same
     bytes before its data (the usual case: one publisher, fixed layout); per
     message otherwise, with the rosbags deserialiser for anything unusual
-    (big-endian CDR, malformed payloads).
+    (big-endian CDR).  A payload nothing can decode raises BagError naming
+    ``where`` (the bag and the topic) and the message.
     """
     if not payloads:
         return []
@@ -331,13 +337,22 @@ def decode_float_arrays(payloads: list, typestore) -> list:
     except (ValueError, struct.error):
         pass
     out = []
-    for p in payloads:
+    for k, p in enumerate(payloads):
         try:
             off, count = _f64_data_at(p)
             out.append(list(struct.unpack_from(f"<{count}d", p, off)))
         except (ValueError, struct.error):
-            out.append(typestore.deserialize_cdr(bytes(p), F64_ARRAY).data.tolist())
+            out.append(_deserialize(typestore, p, F64_ARRAY, where, k).data.tolist())
     return out
+
+
+def _deserialize(typestore, payload, msgtype: str, where: str, k: int):
+    """One raw CDR message, or BagError naming where it is."""
+    try:
+        return typestore.deserialize_cdr(bytes(payload), msgtype)
+    except Exception as exc:  # rosbags raises SerdeError, struct.error, IndexError ...
+        raise BagError(f"{where}: cannot decode message {k} as {msgtype}: "
+                       f"{type(exc).__name__}: {short(exc)}") from None
 
 
 class _Encoders:
@@ -534,23 +549,30 @@ class _Streams:
 
 
 def _read_streams(bag_path: Path, reader: BagReader, roles: dict[str, str],
-                  typestore) -> _Streams:
-    """Read and decode the topics of ``roles`` (role -> topic)."""
+                  typestore, listed: dict) -> _Streams:
+    """Read and decode the topics of ``roles`` (role -> topic).  Every message the bag
+    lists is read or BagError says which topic lost some: never a silent drop."""
     topics = sorted(set(roles.values()))
     s = _Streams()
     try:
         raw = _read_fast(bag_path, topics)
         s.reader = "MCAP fast path"
+        _check_counts(bag_path, listed, {t: len(raw[t][1]) for t in topics})
     except _NotFast as why:
         raw = None
         s.reader = f"rosbags BagReader ({why})"
+    except BagError as err:     # the fast path read fewer: let rosbags try, it must do better
+        raw = None
+        s.reader = f"rosbags BagReader ({err})"
     if raw is not None:
         for role, topic in roles.items():
             t, payloads = raw[topic]
+            where = f"{bag_path}: topic {topic}"
             if role == "joints":
-                s.joints = (t, [typestore.deserialize_cdr(bytes(p), JOINT_STATE) for p in payloads])
+                s.joints = (t, [_deserialize(typestore, p, JOINT_STATE, where, k)
+                                for k, p in enumerate(payloads)])
             else:
-                setattr(s, role, (t, decode_float_arrays(payloads, typestore)))
+                setattr(s, role, (t, decode_float_arrays(payloads, typestore, where)))
                 if role == "truth":
                     s.truth_copy = payloads
         return s
@@ -558,6 +580,7 @@ def _read_streams(bag_path: Path, reader: BagReader, roles: dict[str, str],
     for topic, t_ns, msg in reader.messages(topics):
         lists[topic][0].append(t_ns)
         lists[topic][1].append(msg)
+    _check_counts(bag_path, listed, {t: len(lists[t][0]) for t in topics})
     for role, topic in roles.items():
         t = np.asarray(lists[topic][0], dtype=np.int64)
         msgs = lists[topic][1]
@@ -568,6 +591,15 @@ def _read_streams(bag_path: Path, reader: BagReader, roles: dict[str, str],
             if role == "truth":
                 s.truth_copy, s.truth_raw = msgs, False
     return s
+
+
+def _check_counts(bag_path: Path, listed: dict, got: dict[str, int]) -> None:
+    """BagError unless every topic gave as many messages as the bag lists for it."""
+    for topic, n in got.items():
+        want = listed[topic].count
+        if n != want:
+            raise BagError(f"{bag_path}: topic {topic}: read {n} of the {want} messages the bag "
+                           "lists (a truncated or corrupt file?)")
 
 
 def _check_topic(topics: dict, topic: str, msgtype: str, what: str, bag_path: Path) -> None:
@@ -644,7 +676,7 @@ def _run(runner: Runner, bag_path: Path, out_dir: Path, fqn: str, overwrite: boo
             r.truth_ui_note = (f"no unknown-input ground truth: the bag has no {F64_ARRAY} "
                                f"topic {ui_topic}")
         typestore = getattr(reader, "typestore", None) or jazzy_typestore()
-        r.streams = streams = _read_streams(bag_path, reader, roles, typestore)
+        r.streams = streams = _read_streams(bag_path, reader, roles, typestore, topics)
     wall_read = time.perf_counter()
 
     # events in log-time order; at equal times inputs, then samples, then truth (stable)
@@ -704,6 +736,8 @@ def _run(runner: Runner, bag_path: Path, out_dir: Path, fqn: str, overwrite: boo
 
         def diagnostics(t_ns: int, side: str = "left"):
             st = runner.status(t_ns / 1e9)
+            if t_ns >= MAX_STAMP_NS:            # no header stamp can say that time
+                return st
             # the node adds its own counters; the replay's equivalents (no wall-clock rates)
             values = list(st.values) + [
                 ("enabled", "true"), ("source", settings["source"]),
@@ -722,9 +756,13 @@ def _run(runner: Runner, bag_path: Path, out_dir: Path, fqn: str, overwrite: boo
         next_tick = min(next_diag, t_first + tick_ns)
         for t_ns, kind, i in zip(ev_t, ev_kind, ev_idx):
             if t_ns >= next_tick:
-                while t_ns >= next_diag:
+                if t_ns >= next_diag:
+                    # one status per period of bag time; across a forward jump of the log time
+                    # one at the first boundary, then the next boundary after the jump: O(1)
                     diagnostics(next_diag)
                     next_diag += period_ns
+                    if t_ns >= next_diag:
+                        next_diag += (t_ns - next_diag) // period_ns * period_ns + period_ns
                 bar.update(t_ns)
                 next_tick = min(next_diag, t_ns + tick_ns)
             if kind == _KIND_MEAS:
@@ -816,7 +854,8 @@ def _run(runner: Runner, bag_path: Path, out_dir: Path, fqn: str, overwrite: boo
 def replay(bag_path, params_path, out_dir, *, node_name: str | None = None,
            overwrite: bool = False, progress: bool = True, after: float | None = None,
            tolerance: float = DEFAULT_TOLERANCE, plot: bool = True,
-           overrides: dict[str, Any] | None = None) -> dict[str, Any]:
+           overrides: dict[str, Any] | None = None,
+           min_accepted: float = DEFAULT_MIN_ACCEPTED) -> dict[str, Any]:
     """Replay ``bag_path`` through the observer of ``params_path``; write ``out_dir``.
 
     Args:
@@ -837,6 +876,9 @@ def replay(bag_path, params_path, out_dir, *, node_name: str | None = None,
         plot: write ``replay.png``.
         overrides: ``{full parameter name: value}`` applied after the files
             (``-p NAME:=VALUE``; ``fto-sweep --set``).
+        min_accepted: the replay fails (ReplayError, after writing its outputs
+            and metrics) when it accepts fewer than this fraction of the bag's
+            measurement samples, or none at all: a bag of junk is not a result.
 
     Returns the metrics (also written to ``metrics.json``).
     Raises ConfigError (params), BagError (bags, existing output), ReplayError
@@ -848,6 +890,8 @@ def replay(bag_path, params_path, out_dir, *, node_name: str | None = None,
     if after is not None and not (isinstance(after, (int, float)) and math.isfinite(after)
                                   and after >= 0):
         raise ReplayError(f"after must be a finite number >= 0, got {after!r}")
+    if not (isinstance(min_accepted, (int, float)) and 0.0 <= min_accepted <= 1.0):
+        raise ReplayError(f"min_accepted must be a fraction in [0, 1], got {min_accepted!r}")
     params_paths = ([Path(p) for p in params_path] if isinstance(params_path, (list, tuple))
                     else [Path(params_path)])
     bag_path, out_dir = Path(bag_path), Path(out_dir)
@@ -885,7 +929,23 @@ def replay(bag_path, params_path, out_dir, *, node_name: str | None = None,
         metrics["timing_s"]["plot"] = time.perf_counter() - p0
     (out_dir / "metrics.json").write_text(
         json.dumps(M.json_safe(metrics), indent=2, allow_nan=False) + "\n")
+    _check_accepted(metrics, min_accepted)
     return metrics
+
+
+def _check_accepted(m: dict, min_accepted: float) -> None:
+    """ReplayError when the replay accepted no sample, or fewer than ``min_accepted`` of them."""
+    total, accepted = m["sample_count"], m["samples_accepted"]
+    reasons = ", ".join(f"{k}: {v}" for k, v in sorted(m["rejected_by_reason"].items(),
+                                                       key=lambda kv: -kv[1])[:4])
+    why = f" (rejected: {reasons})" if reasons else ""
+    if accepted == 0:
+        raise ReplayError(f"{m['bag']}: no sample accepted of {total}{why}; outputs in "
+                          f"{m['output_bag']}")
+    if accepted < min_accepted * total:
+        raise ReplayError(f"{m['bag']}: only {accepted} of {total} samples accepted "
+                          f"({accepted / total:.1%} < {min_accepted:.0%}){why}; outputs in "
+                          f"{m['output_bag']}")
 
 
 def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_dir: Path,
