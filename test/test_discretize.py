@@ -298,3 +298,21 @@ def test_piecewise_constant_input_is_not_a_linear_one():
         x = st.step(x, wk, wk, 0.1)
     one = st.step(x0, w0, w1, 1.0)
     assert np.max(np.abs(x - one)) > 1e-3
+
+
+def test_irregular_steps_are_composed_from_cached_ones():
+    """After COMPOSE_AFTER distinct sizes a new whole-quantum size is composed of cached
+    power-of-two steps: the same exact step (to rounding), no new expm per size."""
+    st = ExactStepper(A_ROT, B_ROT)
+    ref = ExactStepper(A_ROT, B_ROT)
+    x0, w0, w1 = np.array([1.0, -0.5]), np.array([0.3, 0.1]), np.array([-0.2, 0.4])
+    rng = np.random.default_rng(7)
+    sizes = rng.integers(1000, 3000, size=400) * discretize.STEP_QUANTUM
+    for h in sizes:
+        np.testing.assert_allclose(st.step(x0, w0, w1, h),
+                                   np.hstack(foh_matrices(A_ROT, B_ROT, h)) @ np.concatenate((x0, w0, w1)),
+                                   rtol=1e-12, atol=1e-13)
+    assert st.misses < discretize.COMPOSE_AFTER + 15       # not one per size
+    for h in sizes[:5]:
+        ref.step(x0, w0, w1, h)
+    assert ref.misses == 5                                  # a few sizes: exact matrices

@@ -503,10 +503,12 @@ class SingleDelayObserver(Observer):
 
         def u_at(t):
             return u0 if held else u0 + (u_end - u0) * ((t - s0) / (s_end - s0))
-        # s_end == s0 when an input at the measurement's time already moved the prediction on
-        steps = 0 if s_end == s0 else max(1, math.ceil((s_end - s0) / self.substep - 1e-9))
+        # s_end == s0 when an input at the measurement's time already moved the prediction on;
+        # sub-steps of whole quanta, so the exact steps come from cached matrices
+        q0, q = quanta(s0), quanta(s_end) - quanta(s0)
+        steps = 0 if q <= 0 else max(1, math.ceil(q * STEP_QUANTUM / self.substep - 1e-9))
         for i in range(steps):
-            s_next = s0 + (i + 1) * (s_end - s0) / steps if i + 1 < steps else s_end
+            s_next = (q0 + round((i + 1) * q / steps)) * STEP_QUANTUM if i + 1 < steps else s_end
             after = self._converged_at(s)
             stepper = self.stepper_after if after else self.stepper_before
             v0 = np.concatenate((self._w(Z[N:], u_at(s))[:-self.q], self._delayed(s)))

@@ -1,0 +1,212 @@
+"""Fault injection on the runner (the code path of the node and the replay), for every
+committed config on its own bag: junk of every family mixed into the clean stream, and
+random operation sequences (gaps from 1 ms to 1e6 s, backward, negative and far-future
+stamps, resets, time jumps, missing inputs, spikes, denormals).
+
+What must hold: no exception escapes, nothing non-finite comes out, no call hangs (each
+is bounded), junk that is refused leaves no trace (the outputs equal a clean run's bit
+for bit), and after any sequence and a restart a clean stream gives exactly what a fresh
+runner gives.  Seeded and bounded by count: the same seeds give the same operations.
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings, strategies as st
+
+from faultkit import (COUNTS, check_result, committed_configs, feed, junk_stamps, junk_values,
+                      runner_for, stream_for)
+from fto_ros.runner import Output
+from fto_ros.runner.runner import HELD
+
+CONFIGS = committed_configs()
+IDS = [c.name for c in CONFIGS]
+#: a call that takes longer than this has hung (a refusal or a step takes microseconds to
+#: milliseconds; this is a hang detector, not a speed test)
+HANG_S = 30.0
+#: random operation sequences per config: examples x operations each (>= 10,000 in all)
+EXAMPLES, OPS = 20, 520
+#: measurements of the clean stream compared after the restart
+AFTER = 300
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _report(request):
+    yield
+    rep = request.config.pluginmanager.getplugin("terminalreporter")
+    if rep is not None and COUNTS:
+        rep.write_line("")
+        rep.write_line(f"fault injection (runner): {sum(COUNTS.values())} operations, by family: "
+                       + ", ".join(f"{k} {v}" for k, v in sorted(COUNTS.items())))
+
+
+def timed(fn, *args):
+    t0 = time.perf_counter()
+    res = fn(*args)
+    assert time.perf_counter() - t0 < HANG_S, f"{fn.__name__}{args[:1]} took too long"
+    return res
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("cfg", CONFIGS, ids=IDS)
+def test_refused_junk_leaves_no_trace(cfg):
+    """Junk the runner refuses, mixed into the clean stream, changes no output at all."""
+    s = stream_for(cfg)
+    ref: list = []
+    feed(runner_for(cfg), s.events, ref)
+    rng = np.random.default_rng(abs(hash(cfg.name)) % 2**32)
+    r = runner_for(cfg)
+    got: list = []
+    t_last = 0.0
+    for t, kind, v in s.events:
+        while rng.random() < 0.3:                     # ~0.4 junk operations per event
+            what = rng.integers(5)
+            if what == 0:
+                fam, y = junk_values(s.n_out, rng)
+                res = timed(r.process, t_last + 1e-4, y)
+                COUNTS[f"y_{fam}"] += 1
+            elif what == 1:
+                fam, u = junk_values(s.n_in, rng)
+                if s.n_in == 0 and isinstance(u, list) and len(u) == 0:
+                    continue
+                res = timed(r.set_input, t_last + 1e-4, u)
+                COUNTS[f"u_{fam}"] += 1
+            elif what == 2:
+                fam, ts = junk_stamps(t_last, rng)
+                res = timed(r.process, ts, v if kind == "y" else [0.0] * s.n_out)
+                COUNTS[fam] += 1
+            elif what == 3:
+                res = timed(r.set_input, float(rng.choice([float("nan"), -2.0, 2.0 ** 31])),
+                            [0.0] * s.n_in)
+                COUNTS["u_stamp"] += 1
+            else:
+                timed(r.status, t_last)
+                COUNTS["status"] += 1
+                continue
+            assert isinstance(res, str) or res is None, f"junk accepted: {res}"
+            assert res is not None, "junk accepted"
+        if kind == "u":
+            assert r.set_input(t, v) is None
+        else:
+            res = r.process(t, v)
+            check_result(res)
+            got.append(res)
+            t_last = t
+        COUNTS["clean"] += 1
+    assert len(got) == len(ref)
+    for a, b in zip(got, ref):
+        if isinstance(b, Output):
+            assert isinstance(a, Output), a
+            np.testing.assert_array_equal(a.estimate, b.estimate)
+            np.testing.assert_array_equal(a.convergence, b.convergence)
+            assert (a.unknown_input is None) == (b.unknown_input is None)
+            if a.unknown_input is not None:
+                np.testing.assert_array_equal(a.unknown_input, b.unknown_input)
+        else:
+            assert a == b
+
+
+def _random_operations(cfg, seed: int, n_ops: int) -> None:
+    s = stream_for(cfg)
+    ev = s.events
+    rng = np.random.default_rng(seed)
+    changes = {}
+    keeps = _keeps_estimate(cfg)
+    if keeps and seed % 2 == 0:
+        # a restart that keeps the estimate cannot equal a fresh run before T: half of the
+        # seeds start every run from a given estimate instead, so the comparison is exact
+        changes = {"observer.initial_estimate": [0.0] * runner_for(cfg).observer.n_states}
+        keeps = False
+    r = runner_for(cfg, **changes)
+    offset, pos, skip_inputs = 0.0, 0, 0
+
+    def now():
+        return offset + ev[min(pos, len(ev) - 1)][0]
+    for _ in range(n_ops):
+        op = rng.choice(["clean"] * 8 + ["y_junk", "u_junk", "stamp", "gap", "jump_back",
+                                         "reset", "time_jump", "status", "no_input",
+                                         "spike", "denormal", "repeat_sample"])
+        COUNTS[f"op_{op}"] += 1
+        if op == "clean":
+            k = int(rng.integers(1, 30))
+            for _ in range(k):
+                if pos >= len(ev):                    # wrap: the signal jumps back to its start
+                    offset, pos = offset + ev[-1][0] + 1e-3, 0
+                t, kind, v = ev[pos]
+                pos += 1
+                if kind == "u":
+                    if skip_inputs:
+                        skip_inputs -= 1
+                        continue
+                    res = timed(r.set_input, offset + t, v)
+                    assert res is None or isinstance(res, str)
+                else:
+                    check_result(timed(r.process, offset + t, v))
+        elif op == "y_junk":
+            check_result(timed(r.process, now(), junk_values(s.n_out, rng)[1]))
+        elif op == "u_junk":
+            res = timed(r.set_input, now(), junk_values(s.n_in, rng)[1])
+            assert res is None or isinstance(res, str)
+        elif op == "stamp":
+            check_result(timed(r.process, junk_stamps(now(), rng)[1], [0.0] * s.n_out))
+        elif op == "gap":                              # 1 ms .. 1e6 s
+            offset += float(10.0 ** rng.uniform(-3, 6))
+        elif op == "jump_back":
+            offset = max(0.0, offset - float(10.0 ** rng.uniform(-3, 3)))
+        elif op == "reset":
+            r.reset()
+        elif op == "time_jump":
+            r.time_jump(now())
+        elif op == "status":
+            st_ = timed(r.status, now())
+            assert st_.level in (0, 1, 2) and st_.message
+        elif op == "no_input":
+            skip_inputs = int(rng.integers(1, 2000))
+        elif op in ("spike", "denormal", "repeat_sample"):
+            last = next((v for _, k_, v in reversed(ev[:max(pos, 1)]) if k_ == "y"), [0.0] * s.n_out)
+            y = {"spike": [x + float(rng.normal(0, 10)) for x in last],
+                 "denormal": [5e-324] * s.n_out, "repeat_sample": last}[op]
+            check_result(timed(r.process, now() + 1e-4, y))
+    # after all that and a restart, a clean stream is exactly what a fresh runner makes of it
+    r.reset()
+    if keeps:
+        return                  # (its estimate is carried over; checked above: finite, no hang)
+    base = offset + ev[-1][0] + 10.0
+    n_meas = 0
+    clean = []
+    for t, k, v in ev:
+        clean.append((t + base, k, v))
+        n_meas += k == "y"
+        if n_meas == AFTER:
+            break
+    a: list = []
+    b: list = []
+    feed(r, clean, a)
+    feed(runner_for(cfg, **changes), clean, b)
+    assert len(a) == len(b)
+    for x, y in zip(a, b):
+        assert type(x) is type(y), (x, y)
+        if isinstance(x, Output):
+            # equal to rounding: a step matrix may come from the step-size cache the junk
+            # filled (composed of cached power-of-two steps) rather than a new expm
+            np.testing.assert_allclose(x.estimate, y.estimate, rtol=1e-12, atol=1e-12)
+            np.testing.assert_allclose(x.convergence, y.convergence, rtol=1e-12, atol=1e-12)
+        else:
+            assert x == y
+
+
+def _keeps_estimate(cfg) -> bool:
+    obs = runner_for(cfg).observer
+    return obs.TYPE == "prescribed_time" and obs.reset_keeps_estimate
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("cfg", CONFIGS, ids=IDS)
+@settings(max_examples=EXAMPLES, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@given(seed=st.integers(0, 2**32 - 1))
+def test_random_operation_sequences(cfg, seed):
+    _random_operations(cfg, seed, OPS)
