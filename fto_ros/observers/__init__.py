@@ -4,6 +4,7 @@ ROS-free: nothing here imports rclpy.
 """
 from __future__ import annotations
 
+from ..core.errors import short
 from .base import ConfigError, Observer, Param
 from .luenberger import LuenbergerObserver
 from .prescribed_time import PrescribedTimeObserver
@@ -21,10 +22,13 @@ REGISTRY.update({cls.TYPE: cls for cls in (GlobalNormObserver, HighGainObserver)
 
 def observer_class(type_name: str) -> type[Observer]:
     """The class registered as ``type_name``, or ConfigError listing the known ones."""
+    if not isinstance(type_name, str):
+        raise ConfigError("observer.type", f"expected the name of an observer (one of "
+                          f"{', '.join(sorted(REGISTRY))}), got {short(type_name)}")
     try:
         return REGISTRY[type_name]
     except KeyError:
-        raise ConfigError("observer.type", f"unknown observer {type_name!r}; known: "
+        raise ConfigError("observer.type", f"unknown observer {short(type_name)}; known: "
                           + ", ".join(sorted(REGISTRY))) from None
 
 

@@ -236,7 +236,7 @@ def _read_fast(bag: Path, topics: list[str]) -> dict[str, tuple[np.ndarray, list
             raise _NotFast(f"{type(err).__name__}: {err}") from None
     out = {}
     for topic, (times, payloads) in wanted.items():
-        t = np.asarray(times, dtype=np.int64)
+        t = _log_times(times, bag, topic)
         if t.size > 1 and np.any(np.diff(t) < 0):
             order = np.argsort(t, kind="stable")
             t = t[order]
@@ -582,7 +582,7 @@ def _read_streams(bag_path: Path, reader: BagReader, roles: dict[str, str],
         lists[topic][1].append(msg)
     _check_counts(bag_path, listed, {t: len(lists[t][0]) for t in topics})
     for role, topic in roles.items():
-        t = np.asarray(lists[topic][0], dtype=np.int64)
+        t = _log_times(lists[topic][0], bag_path, topic)
         msgs = lists[topic][1]
         if role == "joints":
             s.joints = (t, msgs)
@@ -591,6 +591,15 @@ def _read_streams(bag_path: Path, reader: BagReader, roles: dict[str, str],
             if role == "truth":
                 s.truth_copy, s.truth_raw = msgs, False
     return s
+
+
+def _log_times(times: list, bag_path: Path, topic: str) -> np.ndarray:
+    """Log times (ns) as int64, or BagError for one no ROS time can be (>= 2^63 ns)."""
+    try:
+        return np.asarray(times, dtype=np.int64)
+    except OverflowError:
+        raise BagError(f"{bag_path}: topic {topic}: a log time beyond 2^63 ns (a corrupt "
+                       "file?)") from None
 
 
 def _check_counts(bag_path: Path, listed: dict, got: dict[str, int]) -> None:

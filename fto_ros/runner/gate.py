@@ -54,8 +54,8 @@ def exceeds(v, limits: np.ndarray) -> bool:
 class OutlierGate:
     """The model-free innovation gate of the module docstring, for p channels."""
 
-    #: no gating after a step this many times longer than the one before (the linear
-    #: extrapolation across a pause says nothing)
+    #: no gating when one of the last two steps is this many times longer than the other (a
+    #: line through samples either side of a pause says nothing about the next one)
     MAX_STEP_RATIO = 4.0
 
     def __init__(self, settings: Mapping[str, Any], p: int):
@@ -83,7 +83,8 @@ class OutlierGate:
     def _innovation(self, a, b, t: float, y: np.ndarray) -> np.ndarray | None:
         """y minus the line through the samples a and b (None: no usable line)."""
         (t1, y1), (t2, y2) = a, b
-        if not t2 > t1 or not t > t2 or t - t2 > self.MAX_STEP_RATIO * (t2 - t1):
+        if not t2 > t1 or not t > t2 or t - t2 > self.MAX_STEP_RATIO * (t2 - t1) \
+                or t2 - t1 > self.MAX_STEP_RATIO * (t - t2):
             return None
         return y - (y2 + (y2 - y1) * ((t - t2) / (t2 - t1)))
 

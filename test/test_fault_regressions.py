@@ -1,0 +1,289 @@
+"""One test per failure the fault audit found (the robustness issue), each of which failed
+before the fix: gaps, long pauses, silences, forward jumps of the log time, a health level
+stuck at ERROR, absurd finite values, stamp storms, and bags that exit 0 with nothing in
+them or lose messages silently.  (Parameter and expression refusals are in
+test_settings.py and test_expressions.py; the random sequences in test_faults_*.py.)"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from faultkit import committed_configs, runner_for, stream_for
+from fto_ros.bag import BagReader, BagWriter
+from fto_ros.models import dc_motor
+from fto_ros.models.simulate import simulate, uniform_grid
+from fto_ros.replay import cli as replay_cli
+from fto_ros.runner import ERROR, OK, Output, Runner, load_params_file
+from fto_ros.runner.runner import HELD
+
+ROOT = Path(__file__).resolve().parents[1]
+SD = ROOT / "config" / "dc_motor_single_delay.yaml"
+SD_SAMPLED = ROOT / "config" / "dc_motor_single_delay_sampled.yaml"
+CONFIGS = {c.name: c for c in committed_configs()}
+
+
+@pytest.fixture(scope="module")
+def motor():
+    t = uniform_grid(2.0, 1000.0)
+    sim = simulate(dc_motor.make_rhs(), dc_motor.DEFAULT_X0, t, dc_motor.default_voltage,
+                   output=dc_motor.output)
+    return t, sim
+
+
+def run(r: Runner, t, sim, keep=lambda k: True, offset=0.0):
+    """Feed input + measurement k for every k kept; {k: Output or reason}."""
+    out = {}
+    for k in range(len(t)):
+        if keep(k):
+            r.set_input(t[k] + offset, sim.u_k[k])
+            out[k] = r.process(t[k] + offset, sim.y[k])
+    return out
+
+
+# -- live and replay ----------------------------------------------------------------------------
+@pytest.mark.parametrize("gap", [0.099, 0.101, 0.15, 0.3, 0.45])
+def test_single_delay_bridges_any_gap_below_max_gap(motor, gap):
+    """Was: a gap between tau and time.max_gap raised 'time outside the buffer' (observer_error)."""
+    t, sim = motor
+    r = Runner(load_params_file(SD))
+    g0 = 600
+    g1 = g0 + int(round(gap * 1000))
+    out = run(r, t, sim, keep=lambda k: not g0 < k < g1)
+    assert not r.resets and not r.rejected, (r.resets, r.rejected)
+    assert all(isinstance(o, Output) for o in out.values())
+    # tau after the gap the estimate is exact again (up to the hold of y, as before it)
+    late = [k for k in out if k >= g1 + 110]
+    err = max(np.max(np.abs(out[k].estimate - sim.x[k])) for k in late)
+    assert err < 3e-4, err
+
+
+@pytest.mark.parametrize("name,pause", [("third_order_prescribed_time", 100.0),
+                                        ("double_integrator_prescribed_time", 1e6)])
+def test_prescribed_time_runs_on_after_a_long_pause(name, pause):
+    """Was: after a long pause every later sample was rejected (step_too_long / too many
+    windows) for good, and ~/reset did not help."""
+    cfg = CONFIGS[name]
+    r = runner_for(cfg)
+    s = stream_for(cfg)
+    ev = s.events
+    half = next(i for i in range(len(ev) // 2, len(ev)) if ev[i][1] == "u")   # an input first
+    for t, k, v in ev[:half]:
+        r.set_input(t, v) if k == "u" else r.process(t, v)
+    got = []
+    for t, k, v in ev[half:]:
+        if k == "u":
+            r.set_input(t + pause, v)
+        else:
+            got.append(r.process(t + pause, v))
+    assert got[0] == HELD                          # the pause is confirmed by the next sample
+    assert all(isinstance(o, Output) for o in got[1:]), {o for o in got if isinstance(o, str)}
+    assert r.resets == {"gap": 1} and not r.rejected
+    r.reset()                                      # and a reset after it works too
+    t_last = ev[-1][0] + pause
+    r.set_input(t_last + 1e-3, ev[-2][2] if ev[-2][1] == "u" else [0.0])
+    assert isinstance(r.process(t_last + 1e-3, ev[-1][2]), Output)
+
+
+def test_sampled_single_delay_bounds_the_work_after_a_silence():
+    """Was: an input after a silence integrated the whole gap in sub-steps without a cap
+    (1 s: 0.73 s of CPU, 100 s: over 10 s, a stamp of 1e300: never)."""
+    cfg = CONFIGS["dc_motor_single_delay_sampled"]
+    s = stream_for(cfg)
+    steps = {"n": 0}
+    for gap in (1.0, 100.0, 1e300):
+        r = runner_for(cfg)
+        obs = r.observer
+        for st in (obs.stepper_before, obs.stepper_after):
+            real = st.step
+
+            def counted(*a, _real=real):
+                steps["n"] += 1
+                return _real(*a)
+            st.step = counted
+        for t, k, v in s.events[:400]:
+            r.set_input(t, v) if k == "u" else r.process(t, v)
+        steps["n"] = 0
+        t_last = s.events[399][0]
+        res = r.set_input(t_last + gap, s.events[1][2] if s.events[1][1] == "u" else [1.0])
+        # at most MAX_SUBSTEPS predictor sub-steps (2 steps each, Heun): bounded work
+        assert steps["n"] <= 2 * 1000 + 2, (gap, steps["n"])
+        assert res in (None, "input_bad_stamp")
+        assert (res == "input_bad_stamp") == (gap > 2 ** 31)
+
+
+def test_sampled_single_delay_input_hold_foh_is_used():
+    """Was: input_hold: foh was silently ignored in the sampled form."""
+    cfg = CONFIGS["dc_motor_single_delay_sampled"]
+    s = stream_for(cfg)
+    outs = {}
+    for hold in ("zoh", "foh"):
+        r = runner_for(cfg, **{"single_delay.input_hold": hold})
+        res = []
+        for t, k, v in s.events[:1500]:
+            if k == "u":
+                r.set_input(t, v)
+            else:
+                res.append(r.process(t, v))
+        outs[hold] = np.array([o.estimate for o in res if isinstance(o, Output)])
+    assert outs["zoh"].shape == outs["foh"].shape
+    assert np.max(np.abs(outs["zoh"] - outs["foh"])) > 1e-9
+
+
+def _write_motor_bag(path, t, sim, shift_after=None, shift=0.0, stamp_offset=0.0):
+    with BagWriter(path) as bag:
+        for k in range(len(t)):
+            tk = t[k] + stamp_offset + (shift if shift_after is not None and k >= shift_after else 0.0)
+            ns = int(round(tk * 1e9))
+            bag.float_array("/dc_motor/input", ns, sim.u_k[k])
+            bag.float_array("/dc_motor/measured_output", ns, sim.y[k])
+            bag.float_array("/dc_motor/true_state", ns, sim.x[k])
+    return path
+
+
+def test_replay_across_a_forward_jump_of_the_log_time(motor, tmp_path, capsys):
+    """Was: one /diagnostics per bag-second across a forward jump: 1e6 s never finished."""
+    t, sim = motor
+    bag = _write_motor_bag(tmp_path / "jump", t, sim, shift_after=1000, shift=1e6)
+    rc = replay_cli.main([str(bag), "--params", str(SD), "--out", str(tmp_path / "o"),
+                          "--no-progress"])
+    assert rc == 0, capsys.readouterr().err
+    m = json.loads((tmp_path / "o" / "metrics.json").read_text())
+    assert m["restarts_by_reason"] == {"gap": 1}
+    assert m["output_topics"]["/diagnostics"] <= 6      # ~2 s of bag, not 1e6 statuses
+
+
+def test_diagnostics_error_clears_after_clean_data_and_after_reset(motor):
+    """Was: one observer_error restart kept /diagnostics at ERROR for good."""
+    t, sim = motor
+    r = Runner(dict(load_params_file(SD), **{"diagnostics.window": 0.5}))
+    obs = r.observer
+    real = obs.update_checked
+    boom = {"at": 300}
+
+    def flaky(tt, y, u):
+        if boom["at"] == 0:
+            boom["at"] = -1
+            raise RuntimeError("a bug in an observer")
+        boom["at"] -= 1
+        return real(tt, y, u)
+    obs.update_checked = flaky
+    levels = []
+    for k in range(len(t)):
+        r.set_input(t[k], sim.u_k[k])
+        r.process(t[k], sim.y[k])
+        if k % 100 == 99:
+            levels.append(r.status(t[k]).level)
+    assert r.resets["observer_error"] == 1
+    assert ERROR in levels[2:5]                        # the failure at 0.3 s shows ...
+    assert levels[-1] == OK and levels[-5:] == [OK] * 5  # ... and clears 0.5 s later
+    # a ~/reset clears it at once
+    boom["at"] = 0
+    r.set_input(t[-1] + 1e-3, sim.u_k[-1])
+    assert r.process(t[-1] + 1e-3, 2 * sim.y[-1] - sim.y[-2]) == "observer_error"
+    assert r.status(t[-1] + 2e-3).level == ERROR
+    r.reset()
+    assert r.status(t[-1] + 3e-3).level != ERROR
+
+
+def test_absurd_finite_values_never_reach_the_observer(motor):
+    """Was: y or u = 1e300 for 100 ms left the estimate 1e287 off, nothing counted."""
+    t, sim = motor
+    ref = run(Runner(load_params_file(SD)), t, sim)
+    r = Runner(load_params_file(SD))
+    out = {}
+    for k in range(len(t)):
+        if 500 <= k < 600:                             # 100 ms of absurd values on both
+            assert r.set_input(t[k], [1e300]) == "input_implausible"
+            assert r.process(t[k] + 5e-4, [-1e300]) == "measurement_implausible"
+        r.set_input(t[k], sim.u_k[k])
+        out[k] = r.process(t[k], sim.y[k])
+    assert r.rejected == {"input_implausible": 100, "measurement_implausible": 100}
+    for k in range(len(t)):
+        np.testing.assert_array_equal(out[k].estimate, ref[k].estimate)
+
+
+@pytest.mark.parametrize("junk", [-1.0, "negative"])
+def test_junk_stamps_never_start_a_restart_storm(motor, junk):
+    """Was: a JointState stamped 1 s back or at a negative time gave a time_jump restart then
+    a gap restart, message after message (2,101 restarts in 60 s)."""
+    t, sim = motor
+    r = Runner(load_params_file(SD))
+    for k in range(len(t)):
+        r.set_input(t[k], sim.u_k[k])
+        out = r.process(t[k], sim.y[k])
+        assert isinstance(out, Output)
+        stamp = t[k] + junk if junk != "negative" else -t[k] - 1.0
+        r.process(stamp, sim.y[k])                     # one junk stamp after every sample
+    assert not r.resets
+    assert sum(r.rejected.values()) >= len(t) - 1       # (the last one may still be held)
+
+
+# -- bags ---------------------------------------------------------------------------------------
+def _cli(capsys, *args):
+    rc = replay_cli.main([str(a) for a in args] + ["--no-progress"])
+    err = capsys.readouterr().err.strip().splitlines()
+    return rc, err
+
+
+@pytest.mark.parametrize("what", ["all_nan", "wrong_length", "no_input_messages", "beyond_int32"])
+def test_a_bag_without_usable_samples_fails(motor, tmp_path, capsys, what):
+    """Was: exit 0 with 0-1 samples accepted."""
+    t, sim = motor
+    path = tmp_path / what
+    with BagWriter(path) as bag:
+        for k in range(200):
+            ns = int(round(t[k] * 1e9)) + (2 ** 31 * 10 ** 9 if what == "beyond_int32" else 0)
+            if what != "no_input_messages":
+                bag.float_array("/dc_motor/input", ns, sim.u_k[k])
+            else:
+                bag.float_array("/dc_motor/input", ns + 10 ** 12, sim.u_k[k])   # after the end
+            y = {"all_nan": [math.nan], "wrong_length": [1.0, 2.0]}.get(what, sim.y[k])
+            bag.float_array("/dc_motor/measured_output", ns, y)
+    rc, err = _cli(capsys, path, "--params", SD, "--out", tmp_path / "o")
+    assert rc == 1 and len(err) == 1 and "no sample accepted" in err[0], err
+
+
+def _flip_bytes(src: Path, dst: Path, where: float, n: int = 1) -> None:
+    import shutil
+    shutil.copytree(src, dst)
+    mcap = next(dst.glob("*.mcap"))
+    data = bytearray(mcap.read_bytes())
+    i = int(len(data) * where)
+    for j in range(n):
+        data[i + j] ^= 0xFF
+    mcap.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize("where", [0.2, 0.5, 0.8])
+def test_a_damaged_bag_never_loses_messages_silently(tmp_path, capsys, where):
+    """Was: one flipped byte made the reader fall back to rosbags, which dropped 245
+    messages, and the replay still exited 0."""
+    bag = tmp_path / "flipped"
+    _flip_bytes(ROOT / "bags" / "dc_motor_nominal", bag, where)
+    rc, err = _cli(capsys, bag, "--params", SD, "--out", tmp_path / "o")
+    if rc == 0:
+        # the byte hit something that does not matter (e.g. a value): everything was read
+        m = json.loads((tmp_path / "o" / "metrics.json").read_text())
+        with BagReader(ROOT / "bags" / "dc_motor_nominal") as b:
+            assert m["sample_count"] == b.topics["/dc_motor/measured_output"].count
+    else:
+        assert rc == 1 and len(err) == 1 and "flipped" in err[0], err
+
+
+def test_an_undecodable_message_is_one_line_naming_the_topic(motor, tmp_path, capsys):
+    """Was: decode errors surfaced as 'unexpected SerdeError' lines."""
+    t, sim = motor
+    path = tmp_path / "garbage"
+    with BagWriter(path) as bag:
+        raw = bag.raw_writer("/dc_motor/measured_output", "std_msgs/msg/Float64MultiArray")
+        for k in range(100):
+            ns = int(round(t[k] * 1e9))
+            bag.float_array("/dc_motor/input", ns, sim.u_k[k])
+            raw(ns, b"\x00\x01\x00\x00" + b"\xff" * (3 + k % 5))
+    rc, err = _cli(capsys, path, "--params", SD, "--out", tmp_path / "o")
+    assert rc == 1 and len(err) == 1, err
+    assert "/dc_motor/measured_output" in err[0] and "decode" in err[0] and "unexpected" not in err[0]
