@@ -1,7 +1,7 @@
 """``fto-play BAG``: publish a rosbag2 bag on live topics with its timing (like ``ros2 bag play``).
 
     fto-play BAG [--rate R] [--clock] [--loop] [--topics T ...] [--delay S]
-                 [--wait-for-subscribers [TIMEOUT]] [--ros-args ...]
+                 [--wait-for-subscribers [TIMEOUT]] [--junk FRACTION [--seed N]] [--ros-args ...]
 
 Reads the bag with :mod:`fto_ros.bag` (rosbags, no ROS install needed) and
 republishes ``std_msgs/Float64MultiArray``, ``sensor_msgs/JointState`` and
@@ -13,8 +13,16 @@ stamps Float64MultiArray on receipt then gets each sample's own time.  A recorde
 ``/clock`` topic is not replayed when ``--clock`` is given.
 
 Publishers are reliable, keep last 100, volatile (compatible with best-effort sensor
-subscriptions).  ``--wait-for-subscribers`` holds playback until every played topic has
-a subscriber (at most TIMEOUT s), so the first samples are not lost to discovery.
+subscriptions).  ``--wait-for-subscribers`` holds playback until the topics given with
+``--topics`` all have a subscriber, or (without ``--topics``) until any played topic has
+one (a bag holds topics nobody listens to, e.g. the ground truth), at most TIMEOUT s,
+so the first samples are not lost to discovery.
+
+``--junk F`` tests a node's robustness the way a real stream does: after a fraction F of
+the Float64MultiArray and JointState messages it publishes one junk message on the same
+topic (seeded by ``--seed``): NaN or 1e300 values, a wrong length, an empty array, and for
+JointState a missing joint, a stamp 1 s back, negative or far in the future.  A node
+must reject and count every one (its /diagnostics say how).
 
 ``--loop`` replays the bag again and again: the log times (and /clock) jump back at
 every restart, which the observer node detects and counts as one 'time_jump' restart.
@@ -123,8 +131,45 @@ def _parser() -> argparse.ArgumentParser:
                     metavar="TIMEOUT",
                     help="before playing, wait (at most TIMEOUT s, default 10) until every played "
                          "topic has a subscriber, then --delay")
+    ap.add_argument("--junk", type=float, default=0.0, metavar="F",
+                    help="after a fraction F of the data messages publish one junk message on "
+                         "the same topic (robustness tests; default 0)")
+    ap.add_argument("--seed", type=int, default=0, help="seed of --junk (default 0)")
     ap.add_argument("--quiet", action="store_true", help="no progress lines")
     return ap
+
+
+#: junk families, per message type
+JUNK_ARRAY = ("nan", "absurd", "wrong_length", "empty")
+JUNK_JOINT_STATE = JUNK_ARRAY + ("missing_joint", "back_1s", "negative_stamp", "future_stamp")
+
+
+def junk_message(msg, rng) -> tuple[str, Any]:
+    """A junk copy of the rclpy message ``msg`` (Float64MultiArray or JointState): (family, msg)."""
+    js = hasattr(msg, "header")
+    kinds = JUNK_JOINT_STATE if js else JUNK_ARRAY
+    kind = kinds[int(rng.integers(len(kinds)))]
+    values = list(msg.position if js else msg.data)
+    n = max(len(values), 1)
+    bad = {"nan": [float("nan")] * n, "absurd": [1e300] * n, "wrong_length": values + [0.0],
+           "empty": []}.get(kind, values)
+    if not js:
+        out = type(msg)()
+        out.data = _doubles(bad)
+        return kind, out
+    out = type(msg)()
+    out.header.stamp.sec, out.header.stamp.nanosec = msg.header.stamp.sec, msg.header.stamp.nanosec
+    out.name = list(msg.name)
+    out.position, out.velocity, out.effort = _doubles(bad), msg.velocity, msg.effort
+    if kind == "missing_joint":
+        out.name = [n_ + "_missing" for n_ in msg.name]
+    elif kind == "back_1s":
+        out.header.stamp.sec = max(msg.header.stamp.sec - 1, 0)
+    elif kind == "negative_stamp":
+        out.header.stamp.sec = -5
+    elif kind == "future_stamp":
+        out.header.stamp.sec = min(msg.header.stamp.sec + 100000, 2 ** 31 - 1)
+    return kind, out
 
 
 def _select_topics(topics: dict, wanted: list[str] | None, clock: bool) -> tuple[dict, list[str]]:
@@ -173,6 +218,9 @@ def main(argv: list[str] | None = None) -> int:
     if not (args.rate > 0 and math.isfinite(args.rate)):
         print(f"fto-play: error: --rate must be a finite number > 0, got {args.rate}", file=sys.stderr)
         return 2
+    if not 0.0 <= args.junk <= 1.0:
+        print(f"fto-play: error: --junk must be a fraction in [0, 1], got {args.junk}", file=sys.stderr)
+        return 2
 
     try:
         bag = BagReader(args.bag)
@@ -204,16 +252,21 @@ def main(argv: list[str] | None = None) -> int:
 
     played = 0
     code = 0
+    junk: dict[str, int] = {}
+    junk_rng = np.random.default_rng(args.seed) if args.junk > 0 else None
     try:
         if clock_pub is not None:
             clock_pub.publish(clock_msg(bag.start_ns))
         if args.wait_for_subscribers is not None:
+            # the topics asked for all need a subscriber; without --topics any one will do
+            waiting = list(pubs) if args.topics else []
             deadline = time.monotonic() + args.wait_for_subscribers
-            while any(p.get_subscription_count() == 0 for p in pubs.values()):
+            while (any(pubs[t].get_subscription_count() == 0 for t in waiting) if waiting
+                   else all(p.get_subscription_count() == 0 for p in pubs.values())):
                 if time.monotonic() > deadline:
-                    log.warning("no subscriber yet on "
-                                + ", ".join(t for t, p in pubs.items() if p.get_subscription_count() == 0)
-                                + "; playing anyway")
+                    log.warning("no subscriber yet on " + ", ".join(
+                        t for t, p in pubs.items() if p.get_subscription_count() == 0)
+                        + "; playing anyway")
                     break
                 time.sleep(0.02)
         time.sleep(max(0.0, args.delay))
@@ -231,11 +284,19 @@ def main(argv: list[str] | None = None) -> int:
                 if clock_pub is not None and t_ns != last_clock:
                     clock_pub.publish(clock_msg(t_ns))
                     last_clock = t_ns
-                pubs[topic].publish(convert[topic](msg))
+                out = convert[topic](msg)
+                pubs[topic].publish(out)
                 played += 1
+                if junk_rng is not None and topic != CLOCK_TOPIC and junk_rng.random() < args.junk:
+                    kind, bad = junk_message(out, junk_rng)
+                    pubs[topic].publish(bad)
+                    junk[kind] = junk.get(kind, 0) + 1
             loops += 1
             if not args.quiet:
-                log.info(f"played {args.bag} ({played} messages so far, loop {loops})")
+                log.info(f"played {args.bag} ({played} messages so far, loop {loops})"
+                         + (f"; junk sent: {sum(junk.values())} "
+                            f"({', '.join(f'{k} {v}' for k, v in sorted(junk.items()))})"
+                            if junk else ""))
             if not args.loop or t_first is None:
                 break
     except BagError as exc:
@@ -243,6 +304,9 @@ def main(argv: list[str] | None = None) -> int:
         code = 1
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:           # Ctrl-C while waiting: rclpy's context is gone under us
+        if rclpy.ok():
+            raise
     finally:
         bag.close()
         node.destroy_node()
