@@ -65,18 +65,20 @@ class Stream:
 
 
 @lru_cache(maxsize=None)
-def stream(bag: Path, meas: str, inp: str | None) -> Stream:
+def stream(bag: Path, meas: str, inp: str | None, seconds: float = STREAM_SECONDS,
+           truth: str | None = None) -> Stream:
     ev = []
     with BagReader(bag) as b:
-        topics = [meas] + ([inp] if inp else [])
+        topics = [meas] + ([inp] if inp else []) + ([truth] if truth in b.topics else [])
         t0 = None
         for topic, t_ns, msg in b.messages(topics):
             t0 = t_ns if t0 is None else t0
             t = (t_ns - t0) / 1e9
-            if t > STREAM_SECONDS:
+            if t > seconds:
                 break
-            ev.append((t, "u" if topic == inp else "y", [float(v) for v in msg.data]))
-    ev.sort(key=lambda e: (e[0], e[1] != "u"))
+            kind = "u" if topic == inp else ("x" if topic == truth else "y")
+            ev.append((t, kind, [float(v) for v in msg.data]))
+    ev.sort(key=lambda e: (e[0], "uyx".index(e[1])))
     n_out = len(next(v for _, k, v in ev if k == "y"))
     n_in = len(next((v for _, k, v in ev if k == "u"), []))
     return Stream(ev, n_in, n_out)
@@ -95,11 +97,13 @@ def runner_for(cfg: Config, **changes) -> Runner:
     return copy.deepcopy(_TEMPLATES[key])
 
 
-def stream_for(cfg: Config) -> Stream:
+def stream_for(cfg: Config, seconds: float = STREAM_SECONDS, truth: bool = False) -> Stream:
+    """The config's clean stream; with ``truth`` the ground truth too (events of kind 'x')."""
     r = runner_for(cfg)
     meas = resolve_topic(r.settings["topics.measured_output"], "/observer_node")
     inp = resolve_topic(r.settings["topics.input"], "/observer_node") if r.observer.n_inputs else None
-    return stream(cfg.bag, meas, inp)
+    x = resolve_topic(r.settings["topics.true_state"], "/observer_node") if truth else None
+    return stream(cfg.bag, meas, inp, seconds, x)
 
 
 def feed(r: Runner, events, outs: list | None = None) -> None:

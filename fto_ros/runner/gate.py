@@ -80,11 +80,14 @@ class OutlierGate:
         self._held: list[tuple[float, np.ndarray]] = []     # last rejected (t, y), in a row
         self._run = 0                                       # rejections in a row
 
-    def _innovation(self, a, b, t: float, y: np.ndarray) -> np.ndarray | None:
-        """y minus the line through the samples a and b (None: no usable line)."""
+    def _innovation(self, a, b, t: float, y: np.ndarray, streak: bool = False) -> np.ndarray | None:
+        """y minus the line through the samples a and b (None: no usable line).  After a
+        pause (one of the two steps much longer than the other) there is none, unless the
+        pause is a streak of samples this gate rejected (``streak``): then the line of the
+        last accepted samples is what they are measured against."""
         (t1, y1), (t2, y2) = a, b
-        if not t2 > t1 or not t > t2 or t - t2 > self.MAX_STEP_RATIO * (t2 - t1) \
-                or t2 - t1 > self.MAX_STEP_RATIO * (t - t2):
+        if not t2 > t1 or not t > t2 or t2 - t1 > self.MAX_STEP_RATIO * (t - t2) \
+                or (t - t2 > self.MAX_STEP_RATIO * (t2 - t1) and not streak):
             return None
         return y - (y2 + (y2 - y1) * ((t - t2) / (t2 - t1)))
 
@@ -94,7 +97,7 @@ class OutlierGate:
         observer then takes."""
         if not self.enabled or not active or self._n < self.min_history:
             return None
-        e = self._innovation(*self._prev, t, y)
+        e = self._innovation(*self._prev, t, y, streak=self._run > 0)
         if e is None:
             return None
         limit = self.threshold * np.maximum(np.sqrt(self._ms), self.floor)
