@@ -453,3 +453,25 @@ def test_check_settings_direct():
     js = dict(base, source="joint_states")
     refused(lambda: S.check_settings(js, 2, 1, 0), "joint_states.output_joints")
     S.check_settings(dict(js, **{"joint_states.output_joints": ["j"]}), 2, 1, 0)
+
+
+# -- the fault audit's parameter findings (each raised TypeError/OverflowError before) ----------
+def test_missing_required_parameter_is_one_line_not_a_type_error(sd_flat):
+    flat = {k: v for k, v in sd_flat.items() if k != "single_delay.n_unmeasured"}
+    refused(lambda: Runner(flat), "single_delay.n_unmeasured", "required")
+
+
+@pytest.mark.parametrize("key", ["diagnostics.expected_rate", "single_delay.lipschitz_K1",
+                                 "time.max_gap", "outlier.threshold"])
+def test_null_means_the_default(sd_flat, key):
+    r = Runner(dict(sd_flat, **{key: None}))
+    default = next(p.default for p in (*SETTINGS, *r.observer_class.PARAMS)
+                   if key.endswith(p.name))
+    assert r.settings.get(key, r.observer_config.get(key.split(".", 1)[1])) == default
+
+
+@pytest.mark.parametrize("key,value", [("single_delay.k", 10 ** 400), ("qos.depth", 10 ** 400),
+                                       ("single_delay.A1", [10 ** 400, 0, 0, 0]),
+                                       ("estimated_joint_states.position_states", [10 ** 400])])
+def test_integers_beyond_double_range_are_refused(sd_flat, key, value):
+    refused(lambda: Runner(dict(sd_flat, **{key: value})), key)
