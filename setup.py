@@ -45,6 +45,8 @@ setup(
             'fto-observer = fto_ros.nodes.observer_node:main',
             # Same node under the name `ros2 run fto_ros observer_node` looks for.
             'observer_node = fto_ros.nodes.observer_node:main',
+            'fto-observer-managed = fto_ros.nodes.managed_node:main',
+            'managed_observer_node = fto_ros.nodes.managed_node:main',
             'fto-replay = fto_ros.replay.cli:main',
             'fto-simulate = fto_ros.cli.simulate:main',
             'fto-play = fto_ros.nodes.player:main',

@@ -14,7 +14,7 @@ import numpy as np
 
 from fto_ros.bag import BagReader
 from fto_ros.cli.report import plan, plan_examples
-from fto_ros.replay.replay import resolve_topic
+from fto_ros.replay.topics import resolve_topic
 from fto_ros.runner import Runner
 from fto_ros.runner.params_file import load_params_files
 

@@ -33,16 +33,18 @@ import pytest
 import yaml
 
 from fto_ros.bag import BagReader, BagWriter
+from fto_ros.bag.cdr import Encoders, decode_float_arrays
+from fto_ros.bag.mcap_scan import NotFast, read_raw
 from fto_ros.core.errors import ConfigError
 from fto_ros.models import dc_motor, simulate
 from fto_ros.models.simulate import uniform_grid
 from fto_ros.replay import ReplayError, replay
 from fto_ros.replay import cli as replay_cli
 from fto_ros.replay import metrics as M
-from fto_ros.runner.runner import Runner
+from fto_ros.runner.runner import CONVERGENCE_FIELDS, Runner
 from fto_ros.runner.settings import load_params_file
 
-R = importlib.import_module("fto_ros.replay.replay")  # the module (the package exports the function)
+streams_module = importlib.import_module("fto_ros.replay.streams")
 
 REPO = Path(__file__).resolve().parents[1]
 LUENBERGER = REPO / "config" / "dc_motor_luenberger_poles.yaml"  # poles -50..-70: the bounds below
@@ -129,14 +131,24 @@ def test_output_bag_has_one_estimate_per_accepted_sample(run, bag, sim):
     # log time = sample time = the measurement's log time
     meas_times = [t for t, _ in read_topic(bag, f"{NS}/measured_output")]
     assert [t for t, _ in est] == meas_times
-    assert est[0][1].layout.dim[0].label == "q,q_dot,current"
+    # one labelled dimension per element, as the node publishes it
+    assert [(d.label, d.size, d.stride) for d in est[0][1].layout.dim] == [
+        ("q", 1, 1), ("q_dot", 1, 1), ("current", 1, 1)]
+    conv = read_topic(out, "/observer_node/convergence")
+    assert [d.label for d in conv[0][1].layout.dim] == list(CONVERGENCE_FIELDS)
     with BagReader(out) as b:
         topics = b.topics
     n = len(sim.t)
     assert topics["/observer_node/convergence"].count == n
     assert topics["/observer_node/estimated_joint_states"].count == n
+    assert topics["/observer_node/state_estimate_stamped"].count == n
     assert "/observer_node/unknown_input_estimate" not in topics  # Luenberger has none
     assert topics[f"{NS}/true_state"].count == n
+    # self-contained: what the estimates were made from is copied, at the same log times
+    for topic in (f"{NS}/measured_output", f"{NS}/input"):
+        assert [(t, list(m.data)) for t, m in read_topic(out, topic)] == \
+            [(t, list(m.data)) for t, m in read_topic(bag, topic)], topic
+    assert "ros_distro: jazzy" in (out / "metadata.yaml").read_text()
     # /diagnostics once per second of bag time (t = 1 s, 2 s) plus the final one
     assert topics["/diagnostics"].count == 3
     assert m["output_topics"]["/observer_node/state_estimate"] == n
@@ -153,6 +165,20 @@ def test_outputs_match_the_runner_driven_directly(run, sim):
         ref.append(runner.process(t_s, sim.y[k].tolist()).estimate)
     est = np.array([msg.data for _, msg in read_topic(out, "/observer_node/state_estimate")])
     np.testing.assert_array_equal(est, np.array(ref))
+
+
+def test_stamped_named_estimate(run, sim):
+    """state_estimate_stamped: header stamp = the sample time (the bag's log time), names =
+    the state names, position = the estimate; the same values as the labelled array."""
+    out, _ = run
+    st = read_topic(out, "/observer_node/state_estimate_stamped")
+    est = read_topic(out, "/observer_node/state_estimate")
+    assert len(st) == len(est)
+    for (t, msg), (t_e, arr) in zip(st[::97], est[::97]):
+        assert msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec == t == t_e
+        assert list(msg.name) == ["q", "q_dot", "current"] and msg.header.frame_id == ""
+        np.testing.assert_array_equal(msg.position, arr.data)
+        assert len(msg.velocity) == len(msg.effort) == 0
 
 
 def test_joint_states_and_truth_copied(run, sim):
@@ -338,14 +364,14 @@ def test_no_truth_gives_metrics_without_errors(sim, tmp_path):
 # ------------------------------------------------------------------ fast paths
 def test_fast_reader_matches_bagreader(bad_bag):
     topics = [f"{NS}/measured_output", f"{NS}/input", f"{NS}/true_state"]
-    fast = R._read_fast(Path(bad_bag), topics)
+    fast = read_raw(Path(bad_bag), topics)
     with BagReader(bad_bag) as b:
         ts = b._typestore
         for topic in topics:
             ref = [(t, msg) for _, t, msg in b.messages([topic])]
             t_fast, payloads = fast[topic]
             assert t_fast.tolist() == [t for t, _ in ref]
-            vals = R.decode_float_arrays(payloads, ts)
+            vals = decode_float_arrays(payloads, ts)
             for v, (_, msg) in zip(vals, ref):
                 np.testing.assert_array_equal(np.asarray(v, dtype=float), msg.data)
 
@@ -355,9 +381,9 @@ def test_bagreader_fallback_gives_the_same_replay(bad_bag, tmp_path, monkeypatch
     fast = replay(bad_bag, LUENBERGER, tmp_path / "fast", progress=False, plot=False)
 
     def not_fast(*args):
-        raise R._NotFast("forced by the test")
+        raise NotFast("forced by the test")
 
-    monkeypatch.setattr(R, "_read_fast", not_fast)
+    monkeypatch.setattr(streams_module, "read_raw", not_fast)
     slow = replay(bad_bag, LUENBERGER, tmp_path / "slow", progress=False, plot=False)
     assert slow["reader"] == "rosbags BagReader (forced by the test)"
     assert fast["reader"] == "MCAP fast path"
@@ -392,18 +418,19 @@ def test_all_samples_rejected(sim, tmp_path):
 def test_float_array_codec_matches_rosbags():
     from fto_ros.bag.reader import jazzy_typestore
     ts = jazzy_typestore()
-    enc = R._Encoders(ts)
+    enc = Encoders(ts)
     for n in range(5):
-        for label in (None, "a", "q,q_dot,current"):
+        for labels in (None, [f"x{i}" for i in range(n)], ["a"] * n):
             x = np.linspace(-1.0, 2.0, n)
-            raw = enc.float_array(n, label)(x)
-            assert raw == enc._rosbags_f64(x, label)
-            assert R.decode_float_arrays([raw], ts) == [x.tolist()]
-            assert R.decode_float_arrays([raw, raw], ts) == [x.tolist()] * 2
+            raw = enc.float_array(n, labels)(x)
+            assert raw == enc._rosbags_f64(x, labels)
+            assert decode_float_arrays([raw], ts) == [x.tolist()]
+            assert decode_float_arrays([raw, raw], ts) == [x.tolist()] * 2
     assert enc.fallbacks == []
-    js = enc.joint_state(["a", "joint_12"], (2, 0, 2))
-    assert js(5, 7, [1.0, 2.0], [], [3.0, 4.0]) == enc._rosbags_js(
-        ["a", "joint_12"], 5, 7, [1.0, 2.0], [], [3.0, 4.0])
+    for frame in ("", "base_link", "odom_1"):
+        js = enc.joint_state(["a", "joint_12"], (2, 0, 2), frame)
+        assert js(5, 7, [1.0, 2.0], [], [3.0, 4.0]) == enc._rosbags_js(
+            ["a", "joint_12"], 5, 7, [1.0, 2.0], [], [3.0, 4.0], frame_id=frame)
     assert enc.fallbacks == []
 
 

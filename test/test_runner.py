@@ -855,3 +855,18 @@ def test_sampled_measurement_older_than_an_applied_input_is_rejected(sparse):
     assert r.set_input(t + 1e-3, s.u[0]) is None
     got = r.process(t + 5e-4, s.y[149])
     assert isinstance(got, (str, Output))
+
+
+def test_single_delay_k_changed_at_run_time_stays_exact(uniform):
+    """k and the k y part of F2 cannot drift apart: F2 is the plant's own term, the observer
+    adds k y from k, so k := 150 alone still gives the exact estimate tau after the restart."""
+    r = make("single_delay")
+    drive(r, uniform, 0, 200)
+    r.reconfigure(flat("single_delay", single_delay__k=150.0))
+    after = drive(r, uniform, 200, 400)
+    err = max(np.max(np.abs(after[i].estimate - uniform.x[i])) for i in range(310, 400))
+    assert err < 3e-4, err
+    # the old form (F2 = k y written out) is flagged: it would count k y twice
+    with pytest.warns(UserWarning, match="adds itself"):
+        old = Runner(flat("single_delay", single_delay__F2=["100*y0"]))
+    assert "F2 note" in old.observer.diagnostics()

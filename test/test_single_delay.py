@@ -87,7 +87,7 @@ def test_any_tau_gives_exact_estimates_after_tau(tau, k):
     """Any tau > 0 (Remark 1).  For long tau, k = 100 leaves A1 + kI an eigenvalue of
     -97: lambda(r) then grows like e^{97 |r|} and S is ill-conditioned (1.5e13 at
     tau = 0.2, refused); k = 200 > 197.2 makes every mode of lambda decay."""
-    obs = SingleDelayObserver(dc_cfg(tau=tau, k=k, F2=[f"{k}*y0"]))
+    obs = SingleDelayObserver(dc_cfg(tau=tau, k=k))
     t, est, x = run_dc(obs, T=tau + 0.3)
     assert np.all(max_err_after(t, est, x, tau + 1e-3) < 5e-4)
     assert obs.guaranteed_time == tau
@@ -208,7 +208,7 @@ def test_singular_A1_plus_kI_is_refused():
 
 
 def test_unstable_internal_mode_allowed_on_request():
-    obs = SingleDelayObserver(dc_cfg(k=75.0, F2=["75*y0"], allow_unstable_internal=True))
+    obs = SingleDelayObserver(dc_cfg(k=75.0, allow_unstable_internal=True))
     assert obs.max_internal_rate > 0
     t, est, x = run_dc(obs, T=0.3)
     assert np.all(max_err_after(t, est, x, 0.11) < 5e-4)   # still exact on a short run

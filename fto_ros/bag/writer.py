@@ -28,6 +28,9 @@ JOINT_STATE = "sensor_msgs/msg/JointState"
 CLOCK = "rosgraph_msgs/msg/Clock"
 DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
 
+#: the distribution every bag written here says it is for (metadata.yaml ros_distro)
+ROS_DISTRO = "jazzy"
+
 #: DiagnosticStatus level names -> values (diagnostic_msgs/msg/DiagnosticStatus)
 LEVELS = {"OK": 0, "WARN": 1, "ERROR": 2, "STALE": 3}
 
@@ -148,6 +151,11 @@ class BagWriter:
             writer.close()
         except Exception as err:
             raise BagError(f"{self.path}: cannot finish bag: {err}") from err
+        # rosbags writes its own name as the distribution; these bags are ROS 2 Jazzy's
+        meta = self.path / "metadata.yaml"
+        text = meta.read_text()
+        if "ros_distro: rosbags" in text:
+            meta.write_text(text.replace("ros_distro: rosbags", f"ros_distro: {ROS_DISTRO}", 1))
 
     def abort(self) -> None:
         """Stop writing and delete the half-written bag directory."""

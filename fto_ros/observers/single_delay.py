@@ -5,7 +5,10 @@ Plant, in the paper's coordinates (eq. 2):
     xi1' = A1 xi1 + F1(Y, u)                 xi1: the n1 unmeasured states
     xi2' = A2 xi1 - k xi2 + F2(Y, u)         xi2: the q measured states,  Y = xi2
 
-with (A1, A2) observable and A1 + k I invertible.  The dynamic extension (7)
+with (A1, A2) observable and A1 + k I invertible.  The parameter ``single_delay.F2`` is the
+plant's own term G in xi2' = A2 xi1 + G(Y, u); the observer forms the paper's
+F2 = G + k Y from k, so changing k at run time keeps the two consistent.  The dynamic
+extension (7)
 
     xh1' = A1 xh1 + F1(Y, u)
     xh2' = A2 xh1 - k xh2 + F2(Y, u)
@@ -37,6 +40,7 @@ Before t0 + tau the estimate is the open-loop copy xh1 (no guarantee yet).
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 from scipy.linalg import expm
@@ -142,9 +146,12 @@ class SingleDelayObserver(Observer):
         Param("k", "double", None, "k > 0 of eq. (2); A1 + k I must be invertible", min=0.0, read_only=False),
         Param("tau", "double", None, "the delay = the guaranteed convergence time (s), > 0", min=0.0, read_only=False),
         Param("F1", "string_array", [], "n1 known terms in y0.. and u0.. (eq. 2; empty: zeros)", read_only=False),
-        Param("F2", "string_array", [], "q known terms in y0.. and u0.. (eq. 2; empty: zeros)", read_only=False),
+        Param("F2", "string_array", [], "q known terms G(y, u) of the measured states' own "
+              "dynamics, xi2' = A2 xi1 + G (empty: zeros); the observer adds the k y of eq. (2) "
+              "itself, so k and F2 never drift apart", read_only=False),
         Param("lipschitz_K1", "double", 0.0, "Lipschitz constant of F1 in y (eq. 3), for the bounds", min=0.0, read_only=False),
-        Param("lipschitz_K2", "double", 0.0, "Lipschitz constant of F2 in y (eq. 3), for the bounds", min=0.0, read_only=False),
+        Param("lipschitz_K2", "double", 0.0, "Lipschitz constant of G (single_delay.F2) in y; the "
+              "bounds of eq. (3) use it plus k", min=0.0, read_only=False),
         Param("measurement", "string", "continuous", "'continuous' (Theorem 1) or 'sampled' (Theorem 2: "
               "y at sparse instants, predictor between them)", choices=("continuous", "sampled"), read_only=False),
         Param("substep", "double", 1e-3, "sampled form: longest integration sub-step (s)", min=1e-7,
@@ -189,18 +196,28 @@ class SingleDelayObserver(Observer):
                               f"overflow on a long run. Use k > {need:.4g} (so -(A1^T + 2kI) is Hurwitz)"
                               + (" and a Hurwitz A1" if np.max(np.linalg.eigvals(A1).real) > 0 else "")
                               + ", or set single_delay.allow_unstable_internal: true for short runs")
-        F1, F2 = cfg["F1"] or ["0"] * n1, cfg["F2"] or ["0"] * q
-        for name, texts, length in (("F1", F1, n1), ("F2", F2, q)):
-            VectorFunction(texts, q, m, P + name, length=length)   # errors name F1[i] / F2[i]
+        F1, G = cfg["F1"] or ["0"] * n1, cfg["F2"] or ["0"] * q
+        checked = {name: VectorFunction(texts, q, m, P + name, length=length)   # errors name F1[i]
+                   for name, texts, length in (("F1", F1, n1), ("F2", G, q))}
+        # the paper's F2 = G + k y (eq. 2): derived from k here, never written twice
+        F2 = [f"({g}) + {float(k)!r}*y{i}" for i, g in enumerate(G)]
         # both in one compiled function: one call per evaluation on the hot path
         self.F = VectorFunction(F1 + F2, q, m, P + "F")
+        ys = checked["F2"].y_syms
+        self.F2_note = next((f"{P}F2[{i}] has the term {k:g}*y{i}, which the observer adds itself "
+                             f"(F2 is the plant's own term G; an old config that wrote F2 = k y "
+                             f"counts it twice)" for i, e in enumerate(checked["F2"].exprs)
+                             if e.coeff(ys[i]).is_number and float(e.coeff(ys[i])) == k), None)
+        if self.F2_note:
+            warnings.warn(self.F2_note, stacklevel=3)
         d = design(A1, A2, k, tau)
         if not np.isfinite(d["cond_S"]) or d["cond_S"] > 1e13:
             raise ConfigError(P + "tau", f"the Gramian S is numerically singular (cond(S) = "
                               f"{d['cond_S']:.3g}); change tau or k (cond(S) grows with (|A1| + k) tau)")
         self.design = d
         self.A1, self.A2, self.k, self.tau = A1, A2, k, tau
-        self.K1, self.K2 = cfg["lipschitz_K1"], cfg["lipschitz_K2"]
+        # Lipschitz constants of the paper's F1 and F2 = G + k y (eq. 3)
+        self.K1, self.K2 = cfg["lipschitz_K1"], cfg["lipschitz_K2"] + k
         self.mu = theorem2_mu(d, A2, k, self.K1, self.K2)
         self.c_diamond = noise_bound_constant(d, tau, self.K1, self.K2)
         self.sampled = cfg["measurement"] == "sampled"
@@ -559,6 +576,7 @@ class SingleDelayObserver(Observer):
             "noise gain |R| + int|S^-1 (e^-kr - e^-(A1'+2k)r) H| dr": f"{d['noise_gain']:.4g}",
             "c_diamond (Theorem 1 bound, Remark 2)": f"{self.c_diamond:.4g}",
             "slowest internal mode (1/s)": f"{self.max_internal_rate:.4g}",
+            **({"F2 note": self.F2_note} if self.F2_note else {}),
             "delay buffer entries": str(len(self.buffer)),
         }
         if self.sampled:

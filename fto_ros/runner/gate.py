@@ -9,7 +9,9 @@ channel) is rejected as ``measurement_implausible`` / ``input_implausible``: a f
 **Outlier gate.**  Each measurement is compared with the linear extrapolation of the last
 two accepted ones (variable step): the innovation ``e = y - y_pred`` of a model-free
 predictor, available for every observer before its update, so a rejected sample never
-touches the observer's state.  Its recent scale ``sigma`` is the RMS of e over the last
+touches the observer's state; it is expressed in units of the innovation of equal steps of
+the typical length (``_innovation``), so dropped samples do not look like glitches.  Its
+recent scale ``sigma`` is the RMS of e over the last
 ``outlier.window`` accepted samples (an exponentially weighted mean square), floored at
 ``outlier.min_scale``.  Once the observer has converged (the runner says when) and the
 scale has a quarter window of history, a sample with ``|e_i| > threshold * sigma_i`` on
@@ -27,6 +29,7 @@ re-base also restarts the scale estimate.
 """
 from __future__ import annotations
 
+import math
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -64,7 +67,7 @@ class OutlierGate:
         self.min_history = max(2, settings["outlier.window"] // 4)
         self.confirm = settings["outlier.confirm"]
         self.max_consecutive = settings["outlier.max_consecutive"]
-        self.floor = channel_limits(settings["outlier.min_scale"], p, "outlier.min_scale")
+        self.floor = channel_limits(settings["outlier.min_scale"], p, "outlier.min_scale").tolist()
         self.p = p
         self.clear()
 
@@ -75,23 +78,40 @@ class OutlierGate:
     def clear(self) -> None:
         """Forget the history (a restart of the observer, a re-base)."""
         self._prev: list[tuple[float, np.ndarray]] = []     # last two accepted (t, y)
-        self._ms = np.zeros(self.p)                         # mean square of e
+        self._ms = [0.0] * self.p                           # mean square of e
         self._n = 0                                         # innovations in _ms
         self._held: list[tuple[float, np.ndarray]] = []     # last rejected (t, y), in a row
         self._run = 0                                       # rejections in a row
+        self._h = 0.0                                       # typical step (mean, s)
 
-    def _innovation(self, a, b, t: float, y: np.ndarray, streak: bool = False) -> np.ndarray | None:
-        """y minus the line through the samples a and b (None: no usable line).  After a
-        pause (one of the two steps much longer than the other) there is none, unless the
-        pause is a streak of samples this gate rejected (``streak``): then the line of the
-        last accepted samples is what they are measured against."""
+    def _innovation(self, a, b, t: float, y, streak: bool = False) -> list[float] | None:
+        """y minus the line through the samples a and b, in units of the innovation of equal
+        steps of the typical length (None: no usable line).
+
+        Irregular steps (samples dropped on a loaded machine) make the raw innovation larger
+        for a reason that is not a glitch: with r = (t - t2)/(t2 - t1) its noise part grows
+        by sqrt((1 + r^2 + (1 + r)^2) / 6) and the extrapolation error of a smooth signal by
+        (t - t2)(t - t1) / (2 h^2) (h: the typical step); the larger divides it.  In a streak
+        of rejected samples only the noise part does (the line of the last accepted samples
+        is what they are measured against: junk must not get through by lasting).  After a
+        pause in the accepted history (one step much longer than the other) there is no line.
+        Plain floats: p is small, and numpy's per-call cost would be most of the work.
+        """
         (t1, y1), (t2, y2) = a, b
-        if not t2 > t1 or not t > t2 or t2 - t1 > self.MAX_STEP_RATIO * (t - t2) \
-                or (t - t2 > self.MAX_STEP_RATIO * (t2 - t1) and not streak):
+        h1, d = t2 - t1, t - t2
+        if not h1 > 0 or not d > 0 or h1 > self.MAX_STEP_RATIO * d \
+                or (d > self.MAX_STEP_RATIO * h1 and not streak):
             return None
-        return y - (y2 + (y2 - y1) * ((t - t2) / (t2 - t1)))
+        r = d / h1
+        f = math.sqrt((1.0 + r * r + (1.0 + r) ** 2) / 6.0)
+        if not streak and self._h > 0:
+            f = max(f, d * (d + h1) / (2.0 * self._h * self._h))
+        return [(yi - (bi + (bi - ai) * r)) / f for yi, ai, bi in zip(y, y1, y2)]
 
-    def check(self, t: float, y: np.ndarray, active: bool) -> str | None:
+    def _within(self, e: list[float]) -> bool:
+        return all(abs(v) <= lim for v, lim in zip(e, self._limit))
+
+    def check(self, t: float, y, active: bool) -> str | None:
         """'outlier' to reject y at t, 'rebase' to accept it as a confirmed change (the
         caller counts it), None to accept it.  Call ``accepted`` for every sample the
         observer then takes."""
@@ -100,19 +120,20 @@ class OutlierGate:
         e = self._innovation(*self._prev, t, y, streak=self._run > 0)
         if e is None:
             return None
-        limit = self.threshold * np.maximum(np.sqrt(self._ms), self.floor)
-        if np.all(np.abs(e) <= limit):
-            self._held.clear()
-            self._run = 0
+        self._limit = [self.threshold * max(math.sqrt(ms), fl) for ms, fl in zip(self._ms, self.floor)]
+        if self._within(e):
+            if self._run:
+                self._held.clear()
+                self._run = 0
             return None
         held = self._held
-        held.append((t, y.copy()))
+        held.append((t, list(y)))
         del held[:-self.confirm]
         self._run += 1
         # the last `confirm` rejected samples continue each other: a persisting change
         persisting = len(held) == self.confirm and all(
             (e_h := self._innovation(held[i - 2], held[i - 1], *held[i])) is not None
-            and np.all(np.abs(e_h) <= limit) for i in range(2, len(held)))
+            and self._within(e_h) for i in range(2, len(held)))
         if persisting or self._run >= self.max_consecutive:
             base = held[-2:-1]
             self.clear()
@@ -120,21 +141,26 @@ class OutlierGate:
             return "rebase"
         return "outlier"
 
-    def accepted(self, t: float, y: np.ndarray) -> None:
+    def accepted(self, t: float, y) -> None:
         """Record a sample the observer took."""
-        if len(self._prev) == 2:
-            e = self._innovation(*self._prev, t, y)
+        prev = self._prev
+        if prev:
+            step = t - prev[-1][0]
+            if step > 0:
+                self._h = step if self._h == 0 else self._h + self.alpha * (step - self._h)
+        if len(prev) == 2:
+            e = self._innovation(prev[0], prev[1], t, y)
             if e is not None:
-                if self._n == 0:
-                    self._ms = e * e
-                else:
-                    self._ms = self._ms + self.alpha * (e * e - self._ms)
+                a = self.alpha if self._n else 1.0
+                self._ms = [ms + a * (v * v - ms) for ms, v in zip(self._ms, e)]
                 self._n += 1
-        self._prev = (self._prev + [(t, y)])[-2:]
+            self._prev = [prev[1], (t, y)]
+        else:
+            self._prev = prev + [(t, y)]
 
-    def scale(self) -> np.ndarray:
+    def scale(self) -> list[float]:
         """The current sigma per channel (before the floor)."""
-        return np.sqrt(self._ms)
+        return [math.sqrt(ms) for ms in self._ms]
 
     def summary(self) -> str:
         if not self.enabled:

@@ -89,6 +89,7 @@ class Runner:
         self._t_last: float | None = None
         self._t0: float | None = None
         self._held: Held | None = None
+        self._start_from: np.ndarray | None = None     # ~/set_state: the next start's estimate
         self._last_output: Output | None = None
         self.last_rejection: str | None = None
         self.last_error: str | None = None
@@ -197,7 +198,7 @@ class Runner:
             self._held = None
             self._reject("stamp_jump_unconfirmed")
         if verdict == STEP:
-            outcome = self._gate.check(t, np.asarray(y, dtype=float), self.state_name() == "converged")
+            outcome = self._gate.check(t, y, self.state_name() == "converged")
             if outcome == "outlier":
                 self._reject("outlier")
                 return "outlier"
@@ -222,7 +223,8 @@ class Runner:
         first = self._t0 is None
         try:
             if first:
-                x0 = self.settings["observer.initial_estimate"] or None
+                x0 = self._start_from if self._start_from is not None else \
+                    (self.settings["observer.initial_estimate"] or None)
                 obs.reset(t, None if x0 is None else np.array(x0))
             obs.update_checked(t, y, self._u)
         except SampleRejected as exc:
@@ -238,7 +240,7 @@ class Runner:
         out, problem = self._build_output(t)
         if problem is not None:  # never publish a non-finite or absurd estimate
             return self._fail(*problem)
-        self._gate.accepted(t, y)
+        self._gate.accepted(t, y.tolist())
         self.accepted += 1
         self._window_accepted += 1
         self._health.count("accepted")
@@ -262,15 +264,31 @@ class Runner:
         """The input before any arrived: none needed (empty) or missing (None)."""
         return np.zeros(0) if self.observer.n_inputs == 0 else None
 
+    def set_state(self, x) -> str | None:
+        """Restart the observer from the estimate x (plant coordinates) at the next sample:
+        the node's ``~/set_state``.  None when taken, else why not (length, non-finite,
+        beyond ``limits.estimate``); counted as the restart ``set_state``."""
+        n = self.observer.n_states
+        reason = check_vector(x, n, "state")
+        if reason is None and any(abs(v) > self.settings["limits.estimate"] for v in x):
+            reason = "state_implausible"
+        if reason is not None:
+            return reason
+        self._start_from = np.array(x, dtype=float)
+        self.reset("set_state")
+        return None
+
     def reset(self, reason: str = "service") -> None:
         """Restart the observer at the next sample (counted under ``reason``).  A reset
-        requested by a person (``service``, ``enable``, ``reconfigure``) also clears the
-        health window: the diagnostics level starts afresh."""
+        requested by a person (``service``, ``enable``, ``reconfigure``, ``set_state``) also
+        clears the health window: the diagnostics level starts afresh."""
         self.resets[reason] += 1
         self._t0 = None
         self._t_last = None
         self._gate.clear()
-        if reason in ("service", "enable", "reconfigure"):
+        if reason != "set_state":
+            self._start_from = None
+        if reason in ("service", "enable", "reconfigure", "set_state"):
             self._health.clear()
             self.last_error = None
         else:
@@ -292,11 +310,13 @@ class Runner:
         x = np.array(obs.estimate, dtype=float)
         ui = obs.unknown_input
         ui = None if ui is None else np.array(ui, dtype=float)
-        # one sum per vector: a NaN or Inf anywhere makes it non-finite
-        if not math.isfinite(x.sum()) or (ui is not None and not math.isfinite(ui.sum())):
+        # the largest |value|: NaN anywhere makes it NaN, Inf makes it Inf (one pass each)
+        big = max(map(abs, x.tolist()), default=0.0) if x.size else 0.0
+        if ui is not None and ui.size:
+            big = max(big, max(map(abs, ui.tolist())))
+        if not math.isfinite(big) or math.isnan(x.sum()) or (ui is not None and math.isnan(ui.sum())):
             return None, ("non_finite_state", "non_finite_estimate")
-        limit = self.settings["limits.estimate"]
-        if np.max(np.abs(x)) > limit or (ui is not None and ui.size and np.max(np.abs(ui)) > limit):
+        if big > self.settings["limits.estimate"]:
             return None, ("estimate_implausible", "estimate_implausible")
         since = t - self._t0
         gt = obs.guaranteed_time

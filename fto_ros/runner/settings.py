@@ -89,6 +89,10 @@ SETTINGS: tuple[Param, ...] = (
     Param("diagnostics.expected_rate", "double", 0.0, "expected measurement rate (Hz) for the rate "
           "check; 0 disables it", min=0.0, read_only=False),
     Param("diagnostics.hardware_id", "string", "", "node only: hardware_id in /diagnostics"),
+    Param("output.frame_id", "string", "", "header.frame_id of the stamped outputs "
+          "(state_estimate_stamped, unknown_input_estimate_stamped, estimated_joint_states)"),
+    Param("autostart", "bool", False, "managed node only: configure and activate at start-up "
+          "(else it waits in 'unconfigured' for the lifecycle services)"),
     Param("metrics.settle_time", "double", 0.0, "replay only: errors are summarised from this "
           "long (s) after each (re)start (0: the guaranteed time + 10 ms, or 0.11 s without "
           "one; fto-replay --after overrides it)", min=0.0),

@@ -1,0 +1,383 @@
+"""What makes an rclpy node an fto_ros observer: mixed into the plain node and the
+managed (lifecycle) node, so both behave the same on their topics.
+
+Everything numerical happens in :class:`fto_ros.runner.Runner`, the same code the
+offline replay runs; this mixin only
+
+- declares the parameters (``parameters.py``) and builds the runner (``configure``);
+- opens and closes the node's entities (``open``/``close``): subscriptions, outputs
+  (``outputs.py``), services, the /diagnostics timer and the clock jump callback;
+- turns messages into ``(t, y, u)`` samples and outputs into messages stamped with
+  the measurement time (JointState: its header stamp; Float64MultiArray: the node
+  clock at its receipt, ``receipt_clock.py``);
+- offers ``~/reset``, ``~/enable`` and ``~/set_state`` (service and topic) and restarts
+  the observer when the ROS clock jumps back (bag loop, sim restart).
+"""
+from __future__ import annotations
+
+import time
+
+from rcl_interfaces.msg import SetParametersResult
+from rcl_interfaces.srv import SetParameters
+from rclpy.clock import Clock, ClockType, JumpThreshold
+from rclpy.duration import Duration
+from rclpy.event_handler import SubscriptionEventCallbacks
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos_overriding_options import QoSOverridingOptions
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+from std_srvs.srv import SetBool, Trigger
+
+from ..core.errors import ConfigError
+from ..runner.messages import joint_state_sample
+from ..runner.runner import HELD, Runner
+from .outputs import REFRESH_S, Outputs
+from .parameters import NodeParameters, check_declared
+from .receipt_clock import ReceiptClock
+
+_NS = 1_000_000_000
+#: how often at most a summary of rejected samples is logged (s)
+LOG_THROTTLE_S = 5.0
+
+
+class ObserverCore:
+    """The observer behaviour of a node (``self`` is an rclpy Node or LifecycleNode)."""
+
+    _runner: Runner | None = None
+    _entities: list | None = None
+
+    # ------------------------------------------------------------- life cycle
+    def configure(self) -> None:
+        """Declare and validate the parameters and build the observer (no I/O yet).
+        ConfigError (naming the parameter) for an unusable configuration."""
+        self._params = NodeParameters(self)
+        self._params.declare()
+        self._runner = Runner(self._params.with_unknown_overrides())
+        self._received = {"measured_output": 0, "input": 0, "joint_states": 0}
+        self._published = 0
+        self._dropped_disabled = 0
+        self._enabled = True
+        self._last_stamp: float | None = None
+        self._rejected_since_log = 0
+        self._last_reject_log = 0.0
+        self._win_steady = time.monotonic()
+        self._win_published = self._win_received = 0
+        self._apply_settings()
+        if not getattr(self, "_param_callbacks", False):
+            self.add_pre_set_parameters_callback(self._params_convert)
+            self.add_on_set_parameters_callback(self._on_set_parameters)
+            self._param_callbacks = True
+        obs = self._runner.observer
+        self.get_logger().info(
+            f"{obs.TYPE} observer: {obs.n_states} states, {obs.n_outputs} output(s), "
+            f"{obs.n_inputs} input(s); source '{self._runner.settings['source']}'"
+            + (", sim time" if self.get_clock().ros_time_is_active else ""))
+        # the start-up checks' figures (single_delay: tau, cond(S), noise gain, ...)
+        self.get_logger().info("design: " + "; ".join(f"{k} = {v}" for k, v in obs.diagnostics().items()))
+
+    def open(self) -> None:
+        """Outputs, subscriptions, services, timers: the observer runs."""
+        runner, s = self._runner, self._runner.settings
+        obs = runner.observer
+        self._out = Outputs(self.create_publisher, obs, s)
+        ent = list(self._out.publishers)
+        # subscriptions: sensor-data QoS (best effort, keep last qos.depth, volatile), overridable
+        in_qos = QoSProfile(depth=s["qos.depth"], history=HistoryPolicy.KEEP_LAST,
+                            reliability=ReliabilityPolicy.BEST_EFFORT,
+                            durability=DurabilityPolicy.VOLATILE)
+
+        def subscription(mtype, topic, callback):
+            return self.create_subscription(
+                mtype, topic, callback, in_qos,
+                qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+                event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
+        self._stamper = ReceiptClock(self)   # before the data subscriptions: first in a round
+        if s["source"] == "topics":
+            # input first: when u_k and y_k wait in the same executor round, u_k must be
+            # stored before y_k is processed (u given at t holds from t on)
+            if obs.n_inputs > 0:
+                ent.append(subscription(Float64MultiArray, s["topics.input"], self._on_input))
+            ent.append(subscription(Float64MultiArray, s["topics.measured_output"],
+                                    self._on_measured_output))
+        else:
+            ent.append(subscription(JointState, s["topics.joint_states"], self._on_joint_states))
+        ent.append(self.create_subscription(JointState, "~/set_state", self._on_set_state_topic, 10))
+        ent.append(self.create_service(Trigger, "~/reset", self._on_reset))
+        ent.append(self.create_service(SetBool, "~/enable", self._on_enable))
+        ent.append(self.create_service(SetParameters, "~/set_state", self._on_set_state))
+        # /diagnostics and the output subscriber check on the steady clock: they keep going
+        # when sim time stops
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        ent.append(self.create_timer(s["diagnostics.period"], self._publish_diagnostics,
+                                     clock=steady))
+        ent.append(self.create_timer(REFRESH_S, self._out.refresh, clock=steady))
+        self._entities = ent
+        self._jump_handle = None
+        self._arm_jump_callback()
+
+    def close(self) -> None:
+        """Destroy what ``open`` made: no inputs, no outputs; the observer's state is kept."""
+        handle = getattr(self, "_jump_handle", None)
+        if handle is not None:
+            handle.unregister()
+            self._jump_handle = None
+        for e in self._entities or ():
+            destroy = {"Publisher": self.destroy_publisher, "Subscription": self.destroy_subscription,
+                       "Service": self.destroy_service, "Timer": self.destroy_timer}.get(type(e).__name__)
+            if destroy is not None:
+                destroy(e)
+        self._entities = None
+
+    # ------------------------------------------------------------- parameters
+    def _apply_settings(self) -> None:
+        """Cache the settings read per message."""
+        s = self._runner.settings
+        self._future_tolerance = s["time.future_tolerance"]
+        self._reset_on_jump = s["time.reset_on_jump"]
+        self._jump_threshold = s["time.jump_threshold"]
+
+    def _params_convert(self, params: list[Parameter]) -> list[Parameter]:
+        return self._params.convert(params) if self._runner is not None else params
+
+    def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
+        if self._runner is None:        # a managed node not configured: nothing to validate
+            return SetParametersResult(successful=True)
+        try:
+            new = self._params.changed(params)
+            if new is not None:
+                self._runner.reconfigure(new)
+        except ConfigError as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        if new is not None:
+            self._params.flat = new
+            old_threshold = self._jump_threshold
+            self._apply_settings()
+            if self._jump_threshold != old_threshold and self._entities is not None:
+                self._arm_jump_callback()
+            self.get_logger().info("parameters changed: "
+                                   + ", ".join(f"{p.name}={p.value}" for p in params)
+                                   + "; observer restarted")
+        return SetParametersResult(successful=True)
+
+    def _check_undeclared_parameters(self, parameter_list: list[Parameter]):
+        # rclpy's own check, with the names in the message ("undeclared parameter(s): [...]")
+        check_declared(self, parameter_list, super()._check_undeclared_parameters)
+
+    # ------------------------------------------------------------------- time
+    def _arm_jump_callback(self) -> None:
+        if self._jump_handle is not None:
+            self._jump_handle.unregister()
+        ns = max(1, int(round(self._jump_threshold * 1e9)))
+        self._jump_handle = self.get_clock().create_jump_callback(
+            JumpThreshold(min_forward=None, min_backward=Duration(nanoseconds=-ns),
+                          on_clock_change=False),
+            post_callback=self._on_time_jump)
+
+    def _on_time_jump(self, jump) -> None:
+        """The ROS clock went backwards by more than time.jump_threshold."""
+        if not self._reset_on_jump:
+            return
+        # The runner restarts by itself on a backward sample stamp (JointState stamps may
+        # jump before /clock does); count one jump once.
+        t_last = self._runner.last_sample_time
+        now = self.get_clock().now().nanoseconds * 1e-9
+        if t_last is None or t_last <= now + self._jump_threshold:
+            return
+        self._runner.time_jump(now)
+        self.get_logger().warning(
+            f"ROS time jumped back by {-jump.delta.nanoseconds * 1e-9:.3f} s: observer restarted",
+            throttle_duration_sec=LOG_THROTTLE_S)
+
+    # --------------------------------------------------------------- samples
+    def _reject(self, reason: str) -> None:
+        """Count a rejection found by the node (not the runner) in the runner's counters."""
+        self._runner.reject(reason)
+        self._rejected(reason)
+
+    def _rejected(self, reason: str) -> None:
+        """Log rejected samples as a throttled summary, never one line per sample."""
+        if reason is HELD:
+            return
+        self._rejected_since_log += 1
+        mono = time.monotonic()
+        if mono - self._last_reject_log >= LOG_THROTTLE_S:
+            rej = self._runner.rejected
+            self.get_logger().warning(
+                f"{self._rejected_since_log} sample(s) rejected (last: {reason}); totals: "
+                + ", ".join(f"{k}={v}" for k, v in sorted(rej.items())),
+                throttle_duration_sec=LOG_THROTTLE_S)
+            self._last_reject_log = mono
+            self._rejected_since_log = 0
+
+    def _on_measured_output(self, msg: Float64MultiArray, info: dict) -> None:
+        self._received["measured_output"] += 1
+        self._win_received += 1
+        if not self._enabled:
+            self._dropped_disabled += 1
+            return
+        ns = self._stamper.receipt_ns(info)
+        if ns is None:
+            self._reject("waiting_for_clock")
+            return
+        out = self._runner.process(ns * 1e-9, msg.data)
+        if out.__class__ is str:
+            self._rejected(out)
+            return
+        self._publish(out, ns // _NS, ns % _NS)
+
+    def _on_input(self, msg: Float64MultiArray, info: dict) -> None:
+        self._received["input"] += 1
+        if not self._enabled:
+            return
+        ns = self._stamper.receipt_ns(info)
+        if ns is None:
+            self._reject("waiting_for_clock")
+            return
+        reason = self._runner.set_input(ns * 1e-9, msg.data)
+        if reason is not None:
+            self._rejected(reason)
+
+    def _on_joint_states(self, msg: JointState) -> None:
+        self._received["joint_states"] += 1
+        self._win_received += 1
+        if not self._enabled:
+            self._dropped_disabled += 1
+            return
+        stamp = msg.header.stamp
+        sim = self.get_clock().ros_time_is_active
+        if stamp.sec == 0 and stamp.nanosec == 0 and not sim:
+            self._reject("zero_stamp")
+            return
+        sample = joint_state_sample(msg, self._runner.settings)
+        if sample.__class__ is str:
+            self._reject(sample)
+            return
+        t, y, u = sample
+        ns = self._stamper.now_ns()  # None under sim time before the first /clock: no check
+        if ns is not None and t - ns * 1e-9 > self._future_tolerance:
+            self._reject("future_stamp")
+            return
+        self._last_stamp = t
+        if u is not None:
+            reason = self._runner.set_input(t, u)
+            if reason is not None:  # counted by the runner; never pair y with a bad u
+                self._rejected(reason)
+                return
+        out = self._runner.process(t, y)
+        if out.__class__ is str:
+            self._rejected(out)
+            return
+        self._publish(out, stamp.sec, stamp.nanosec)
+
+    def _publish(self, out, sec: int, nanosec: int) -> None:
+        """Publish one Output; every message carries the measurement time (never now())."""
+        self._out.publish(out, sec, nanosec)
+        self._published += 1
+        self._win_published += 1
+
+    # --------------------------------------------------------------- services
+    def _on_reset(self, request, response):
+        self._runner.reset("service")
+        response.success = True
+        response.message = (f"observer restarted at the next sample "
+                            f"(restarts so far: {sum(self._runner.resets.values())})")
+        self.get_logger().info("reset requested: " + response.message)
+        return response
+
+    def _on_enable(self, request, response):
+        was = self._enabled
+        self._enabled = bool(request.data)
+        if self._enabled and not was:
+            self._runner.reset("enable")
+        response.success = True
+        response.message = ("enabled" if self._enabled else
+                            "disabled: samples are dropped (counted as 'disabled') until enabled")
+        self.get_logger().info(response.message)
+        return response
+
+    def _set_state(self, x) -> str | None:
+        """Validate and take x; None or why it was refused (logged either way)."""
+        reason = self._runner.set_state(x)
+        names = self._runner.observer.state_names
+        if reason is None:
+            self.get_logger().info("set_state: the observer restarts from "
+                                   + ", ".join(f"{n}={v:.6g}" for n, v in zip(names, x))
+                                   + " at the next sample")
+        else:
+            self.get_logger().warning(f"set_state refused: {reason}")
+        return reason
+
+    def _on_set_state(self, request, response):
+        """rcl_interfaces/SetParameters: one double_array parameter 'state' with every state
+        in order, or one double parameter per state, named by the state's name."""
+        names = list(self._runner.observer.state_names)
+        params = [Parameter.from_parameter_msg(p) for p in request.parameters]
+        given = {p.name: p.value for p in params}
+        state = given.get("state")
+        if set(given) == {"state"} and hasattr(state, "__len__") and not isinstance(state, str):
+            x, reason = list(state), None
+        elif set(given) == set(names) and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                              for v in given.values()):
+            x, reason = [float(given[n]) for n in names], None
+        else:
+            x, reason = None, (f"give one double_array parameter 'state' with {len(names)} values, "
+                               f"or one double per state named {', '.join(names)}")
+        if reason is None:
+            reason = self._set_state(x)
+        response.results = [SetParametersResult(successful=reason is None, reason=reason or "")
+                            for _ in params or [None]]
+        return response
+
+    def _on_set_state_topic(self, msg: JointState) -> None:
+        names = list(self._runner.observer.state_names)
+        if list(msg.name) != names or len(msg.position) != len(names):
+            self.get_logger().warning(f"set_state refused: name must be {names} with one "
+                                      f"position each, got {list(msg.name)}")
+            return
+        self._set_state(list(msg.position))
+
+    # ------------------------------------------------------------ diagnostics
+    def _publish_diagnostics(self) -> None:
+        runner = self._runner
+        ns = self._stamper.now_ns()
+        now = None if ns is None else ns * 1e-9
+        st = runner.status(now)
+        mono = time.monotonic()
+        span = mono - self._win_steady
+        pub_rate = self._win_published / span if span > 0 else 0.0
+        in_rate = self._win_received / span if span > 0 else 0.0
+        self._win_steady, self._win_published, self._win_received = mono, 0, 0
+        level, message = st.level, st.message
+        values = list(st.values)
+        values += [
+            ("enabled", str(self._enabled).lower()),
+            ("source", runner.settings["source"]),
+            ("messages received: measured_output", str(self._received["measured_output"])),
+            ("messages received: input", str(self._received["input"])),
+            ("messages received: joint_states", str(self._received["joint_states"])),
+            ("estimates published", str(self._published)),
+            ("input message rate (Hz, wall clock)", f"{in_rate:.1f}"),
+            ("publish rate (Hz, wall clock)", f"{pub_rate:.1f}"),
+            ("dropped: disabled", str(self._dropped_disabled)),
+            ("sim time", str(self.get_clock().ros_time_is_active).lower()),
+        ]
+        if self._last_stamp is not None and now is not None:
+            values.append(("last stamp age (s)", f"{now - self._last_stamp:.4f}"))
+        if not self._enabled:
+            level = max(level, 1)
+            message = "disabled via ~/enable; samples dropped: " + message
+        self._out.publish_diagnostics(
+            ns, level, f"{self.get_name()}: observer", message,
+            runner.settings["diagnostics.hardware_id"] or runner.observer_type, values)
+
+    # ------------------------------------------------------------- accessors
+    @property
+    def runner(self) -> Runner:
+        """The runner (for tests and embedding)."""
+        return self._runner
+
+    def destroy_node(self) -> None:
+        if self._entities is not None:
+            self.close()
+        super().destroy_node()
