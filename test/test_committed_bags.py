@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from fto_ros.cli import report
+from fto_ros.runner.plant_files import params_files
 
 ROOT = Path(__file__).resolve().parents[1]
 replay = importlib.import_module("fto_ros.replay.replay").replay
@@ -66,7 +67,7 @@ def test_every_pair_has_a_bound():
 
 @pytest.mark.parametrize("pair", PAIRS, ids=lambda p: f"{p.bag.name}-{p.config.stem}")
 def test_committed_bag_replays_within_bounds(pair, tmp_path):
-    m = replay(pair.bag, pair.config, tmp_path / "out", progress=False)
+    m = replay(pair.bag, pair.params, tmp_path / "out", progress=False)
     assert m["samples_rejected"] == 0 and m["restarts"] == 0
     assert m["samples_accepted"] == m["sample_count"] > 1000
     err = m["errors"]["per_state"]
@@ -126,7 +127,7 @@ def test_every_example_pair_has_a_bound():
 @pytest.mark.parametrize("pair", EXAMPLES, ids=lambda p: f"{p.bag.name}-{p.config.stem}")
 def test_example_replays_within_bounds(pair, tmp_path):
     bound = EXAMPLE_BOUNDS[(pair.bag.name, pair.config.stem)]
-    m = replay(pair.bag, pair.config, tmp_path / "out", progress=False)
+    m = replay(pair.bag, pair.params, tmp_path / "out", progress=False)
     assert m["samples_rejected"] == 0 and m["samples_accepted"] == m["sample_count"] > 1000
     worst = max(e["max_abs_after_settle"] for e in m["errors"]["per_state"].values())
     assert worst < bound, m["errors"]["per_state"]
@@ -135,7 +136,7 @@ def test_example_replays_within_bounds(pair, tmp_path):
 def test_load_torque_identified_on_the_load_bag(tmp_path):
     """hosm identifies the unknown load torque (measured max error 4.8e-4 after 0.11 s,
     the torque itself swings by several units)."""
-    m = replay(ROOT / "bags" / "dc_motor_load", ROOT / "config" / "dc_motor_hosm.yaml",
+    m = replay(ROOT / "bags" / "dc_motor_load", params_files(ROOT / "config" / "dc_motor_hosm.yaml"),
                tmp_path / "out", progress=False)
     ui = m["unknown_input_errors"]["per_state"]
     (name, err), = ui.items()

@@ -53,7 +53,7 @@ from std_msgs.msg import Float64MultiArray  # noqa: E402
 from std_srvs.srv import SetBool, Trigger  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-CONFIG = ROOT / "config" / "dc_motor_luenberger.yaml"
+CONFIG = ROOT / "test" / "data" / "dc_motor_explicit" / "dc_motor_luenberger.yaml"
 STATUS_NAME = "observer_node: observer"
 NODE = "/observer_node"
 TOL = np.array([1e-3, 1e-2, 5e-2])  # (q, q_dot, I), see the module docstring
@@ -711,7 +711,7 @@ def test_hosm_publishes_the_load_torque_live(tmp_path):
     from fto_ros.bag import read_messages
     truth = {t: np.array(m.data) for _, t, m in read_messages(bag, ["/dc_motor/true_state"])}
     torque = {t: m.data[0] for _, t, m in read_messages(bag, ["/dc_motor/true_unknown_input"])}
-    doc = yaml.safe_load((ROOT / "config" / "dc_motor_hosm.yaml").read_text())
+    doc = yaml.safe_load((ROOT / "test" / "data" / "dc_motor_explicit" / "dc_motor_hosm.yaml").read_text())
     doc["observer_node"]["ros__parameters"]["diagnostics"].update(period=0.2, expected_rate=0.0)
     params = tmp_path / "hosm.yaml"
     params.write_text(yaml.safe_dump(doc, sort_keys=False))

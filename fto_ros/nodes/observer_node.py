@@ -70,6 +70,7 @@ from std_srvs.srv import SetBool, Trigger
 from ..core.errors import ConfigError
 from ..observers import REGISTRY, observer_class
 from ..observers.base import Observer, Param
+from ..plant.block import PLANT_PARAMS, PREFIX as PLANT_PREFIX
 from ..runner.messages import joint_state_sample
 from ..runner.runner import CONVERGENCE_FIELDS, Runner
 from ..runner.params_file import load_params_file
@@ -242,6 +243,7 @@ class ObserverNode(Node):
                               "-p observer.type:=NAME")
         cls = observer_class(type_name)
         specs = [(p.name, p) for p in SETTINGS] + [(f"{cls.TYPE}.{p.name}", p) for p in cls.PARAMS]
+        specs += [(PLANT_PREFIX + p.name, p) for p in PLANT_PARAMS]      # the plant block
         for full, p in specs:
             value = p.default
             if full in overrides:
