@@ -22,7 +22,7 @@ import sympy
 from ..core.errors import ConfigError
 from .block import Plant, number, to_text
 
-LINEAR_CLASS = "a plant linear in the states up to known terms in the measured outputs and inputs"
+LINEAR_CLASS = "a linear plant (up to known terms in the measured outputs and inputs)"
 
 
 def _is_constant(e: sympy.Expr) -> bool:
@@ -127,10 +127,9 @@ def linear_form(plant: Plant, who: str, unknown_inputs: bool = False) -> LinearF
                 c = _coefficient(e, s)
                 if c is None:
                     if kind == "state" and j not in measured or kind == "unknown input":
-                        what = ("an unmeasured state" if kind == "state" else "an unknown input")
+                        what = "not measured" if kind == "state" else "an unknown input"
                         raise ConfigError(where, f"{who} needs {LINEAR_CLASS}: {where} has "
-                                          f"{offending_term(e, s)} ({s} is {what}: it must "
-                                          "enter linearly with a constant coefficient)")
+                                          f"{offending_term(e, s)} ({s} is {what})")
                     continue            # a measured state or a known input: part of R
                 M[i, j] = number(c)
                 rest = rest - c * s
