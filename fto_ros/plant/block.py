@@ -142,3 +142,11 @@ def check_observable(plant: Plant, points: int = 4, seed: int = 7) -> None:
         raise ConfigError(PREFIX + "h", f"the plant is not observable from h: its linearisation "
                           f"has observability rank {rank} < n = {n} at every point tried "
                           f"({hidden} does not show in the output)")
+
+
+def compiled(plant: Plant):
+    """(f(x, u, d) -> tuple, h(x, u) -> tuple): the plant compiled once (math functions), for
+    simulating it (fto-simulate) and for tests."""
+    from ..core.expressions import compile_exprs
+    return (compile_exprs(plant.f, (plant.x, plant.u, plant.d)),
+            compile_exprs(plant.h, (plant.x, plant.u)))
