@@ -18,7 +18,7 @@ import sympy
 from ..core.errors import ConfigError
 from ..observers import REGISTRY
 from .block import Plant, to_text
-from .forms import LinearForm, canonical_form, chain_form, linear_form
+from .forms import LinearForm, canonical_form, chain_form, linear_form, output_matrix
 
 #: observer type -> the parameters derived from the plant block (a file giving one of them
 #: explicitly as well is refused)
@@ -98,9 +98,8 @@ def _nominal_note(plant: Plant, who: str) -> list[str]:
 # --------------------------------------------------------------------- single_delay
 def _single_delay(plant: Plant, section) -> Derivation:
     who = "single_delay"
-    lf = linear_form(plant, who)
     p, n = plant.p, plant.n
-    out_state = {i: (j, c) for j, (i, c) in lf.measured.items()}
+    out_state = {i: (j, c) for j, (i, c) in output_matrix(plant, who)[1].items()}
     for i in range(p):
         if i not in out_state:
             where = plant.where("h", i)
@@ -112,6 +111,7 @@ def _single_delay(plant: Plant, section) -> Derivation:
     if not U:
         raise ConfigError("plant.h", f"{who} estimates the unmeasured states: every state is "
                           "measured here")
+    lf = linear_form(plant, who)
     k = _tuning(who, section, "k", "k > 0 of eq. (2); F2 = k y + ... is derived from it")
     ren = lf.output_names(plant)
     ys = [sympy.Symbol(f"y{i}", real=True) for i in range(p)]
