@@ -13,7 +13,6 @@ import sympy
 from fto_ros.core.errors import ConfigError
 from fto_ros.models.simulate import simulate
 from fto_ros.observers import REGISTRY
-from fto_ros.observers.base import resolve
 from fto_ros.plant import DERIVES, derive, expand, resolve_plant
 from fto_ros.plant.block import compiled
 from fto_ros.runner import Runner
@@ -242,4 +241,3 @@ def test_every_observer_type_builds_from_the_plant_block_with_only_its_tuning():
         obs = Runner(flat_with(type_name, plant, **{f"{type_name}__{k}": v
                                                     for k, v in values.items()})).observer
         assert obs.TYPE == type_name and obs.state_names == ["theta", "omega"], type_name
-        assert resolve(type(obs).PARAMS, {k: v for k, v in values.items()} | {}, "") is not None

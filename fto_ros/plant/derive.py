@@ -16,6 +16,7 @@ import numpy as np
 import sympy
 
 from ..core.errors import ConfigError
+from ..core.structure import StructureError, invariant_zeros, relative_degree
 from ..observers import REGISTRY
 from .block import Plant, to_text
 from .forms import LinearForm, canonical_form, chain_form, linear_form, output_matrix
@@ -209,9 +210,34 @@ def _linear(plant: Plant, who: str, identify: bool) -> Derivation:
     params = dict(n_states=plant.n, n_outputs=plant.p, n_inputs=plant.m, A=_flat(lf.A),
                   B=_flat(lf.B) if plant.m else [], C=_flat(lf.C), F=F,
                   state_names=list(plant.states))
+    figures = {"open-loop eigenvalues": _complex_list(np.linalg.eigvals(lf.A))}
     if identify:
         params.update(D=_flat(lf.D), unknown_input_names=list(plant.unknown_inputs))
-    return Derivation(params, notes=[] if identify else _nominal_note(plant, who))
+        figures.update(_unknown_input_structure(lf))
+    return Derivation(params, figures, notes=[] if identify else _nominal_note(plant, who))
+
+
+def _complex_list(z) -> str:
+    return ", ".join(f"{v.real:.4g}" if abs(v.imag) < 1e-9 * max(1.0, abs(v)) else
+                     f"{v.real:.4g}{v.imag:+.4g}j" for v in np.sort_complex(np.asarray(z, complex)))
+
+
+def _unknown_input_structure(lf: LinearForm) -> dict[str, str]:
+    """Fridman-Levant-Davila's conditions on (A, C, D): the relative degree exists and the
+    invariant zeros are stable (strongly detectable; none: strongly observable)."""
+    try:
+        r, _ = relative_degree(lf.A, lf.C, lf.D)
+    except StructureError as exc:
+        raise ConfigError("plant.unknown_inputs", f"hosm: {exc}") from None
+    zeros = invariant_zeros(lf.A, lf.C, lf.D)
+    if np.any(zeros.real >= 0):
+        raise ConfigError("plant.unknown_inputs", "hosm needs a strongly detectable plant "
+                          "(every invariant zero with Re < 0); the zeros of (A, D, C) are "
+                          + _complex_list(zeros))
+    return {"relative degree": ", ".join(map(str, r)),
+            "invariant zeros": _complex_list(zeros) or "none",
+            "unknown input": "strongly observable (exact in finite time)" if not len(zeros)
+            else "strongly detectable (the zero dynamics converge at the zeros' rates)"}
 
 
 # ----------------------------------------------------------------- models as text
