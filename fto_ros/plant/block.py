@@ -25,7 +25,6 @@ import sympy
 from sympy.printing.str import StrPrinter
 
 from ..core.errors import ConfigError
-from ..core.linear import observability_matrix, observability_rank
 from ..core.named_model import NamedModel, parse_model
 from ..observers.base import Param, resolve
 
@@ -109,39 +108,54 @@ def number(value) -> float:
     return v
 
 
+def _undetectable(A: np.ndarray, C: np.ndarray):
+    """(eigenvalue, state index) of a mode with Re >= 0 that the output does not see (PBH),
+    or None when (A, C) is detectable."""
+    n = A.shape[0]
+    for lam in np.linalg.eigvals(A):
+        if lam.real < -1e-9:
+            continue
+        pbh = np.vstack([A - lam * np.eye(n), C])
+        _, s, vh = np.linalg.svd(pbh)
+        tol = max(pbh.shape) * np.finfo(float).eps * max(s[0], 1.0) * 1e3
+        if np.sum(s > tol) < n:
+            return lam, int(np.argmax(np.abs(vh[-1])))
+    return None
+
+
 def check_observable(plant: Plant, points: int = 4, seed: int = 7) -> None:
-    """Refuse a plant whose linearisation (df/dx, dh/dx) is unobservable (PBH) at every one
-    of a few seeded random points (states and inputs standard normal, unknown inputs 0):
-    then some direction of the state never shows in the output.  Points where f or h is
-    not defined are skipped; when none is defined nothing is decided here."""
+    """Refuse a plant whose linearisation (df/dx, dh/dx) has, at every one of a few seeded
+    random points (states and inputs standard normal, unknown inputs 0), a mode with
+    Re >= 0 that the output does not see (PBH): no observer can recover it.  Unobservable
+    but stable modes are left to the observers that accept them (hosm, strongly
+    detectable plants); each derivation checks what its paper needs.  Points where f or h
+    is not defined are skipped; when none is defined nothing is decided here."""
     n = plant.n
     jac = sympy.lambdify([plant.x, plant.u],
                          [sympy.Matrix(plant.nominal(plant.f)).jacobian(plant.x),
                           sympy.Matrix(plant.h).jacobian(plant.x)], modules="numpy", cse=True)
     rng = np.random.default_rng(seed)
-    worst = None
+    hidden = None
     for _ in range(points):
         try:
             with np.errstate(all="ignore"):
-                A, C = (np.asarray(M, dtype=float) for M in jac(rng.standard_normal(n),
-                                                                  rng.standard_normal(plant.m)))
+                A, C = (np.asarray(M, dtype=float).reshape(shape) for M, shape in
+                        zip(jac(rng.standard_normal(n), rng.standard_normal(plant.m)),
+                            ((n, n), (plant.p, n))))
         except (ValueError, ZeroDivisionError, OverflowError, TypeError):
             continue
         if not (np.all(np.isfinite(A)) and np.all(np.isfinite(C))):
             continue
-        rank = observability_rank(A, C)
-        if rank == n:
+        hidden = _undetectable(A, C)
+        if hidden is None:
             return
-        worst = (rank, A, C)
-    if worst is not None:
-        rank, A, C = worst
-        # the direction the output does not see: the last right singular vector of the
-        # observability matrix, named by its largest component
-        v = np.linalg.svd(observability_matrix(A, C))[2][-1]
-        hidden = plant.states[int(np.argmax(np.abs(v)))]
+    if hidden is not None:
+        lam, j = hidden
         raise ConfigError(PREFIX + "h", f"the plant is not observable from h: its linearisation "
-                          f"has observability rank {rank} < n = {n} at every point tried "
-                          f"({hidden} does not show in the output)")
+                          f"has a mode at {complex(lam).real:.4g}"
+                          + (f"{complex(lam).imag:+.4g}j" if abs(complex(lam).imag) > 1e-12 else "")
+                          + f" that the output never sees ({plant.states[j]} does not show in "
+                          "the output), at every point tried")
 
 
 def compiled(plant: Plant):

@@ -16,6 +16,7 @@ import numpy as np
 import sympy
 
 from ..core.errors import ConfigError
+from ..core.linear import observability_rank
 from ..core.structure import StructureError, invariant_zeros, relative_degree
 from ..observers import REGISTRY
 from .block import Plant, to_text
@@ -113,6 +114,9 @@ def _single_delay(plant: Plant, section) -> Derivation:
         raise ConfigError("plant.h", f"{who} estimates the unmeasured states: every state is "
                           "measured here")
     lf = linear_form(plant, who)
+    A1 = lf.A[np.ix_(U, U)]
+    A2 = np.diag(scale) @ lf.A[np.ix_(M, U)]
+    _observable(A1, A2, who + " ((A1, A2) of eq. 2)")
     k = _tuning(who, section, "k", "k > 0 of eq. (2); F2 = k y + ... is derived from it")
     ren = lf.output_names(plant)
     ys = [sympy.Symbol(f"y{i}", real=True) for i in range(p)]
@@ -131,8 +135,6 @@ def _single_delay(plant: Plant, section) -> Derivation:
     F1 = [known(i) for i in U]
     F2 = [(known(j) if c == 1.0 else sympy.Float(c) * known(j)) + sympy.Float(k) * ys[r]
           for r, (j, c) in enumerate(zip(M, scale))]
-    A1 = lf.A[np.ix_(U, U)]
-    A2 = np.diag(scale) @ lf.A[np.ix_(M, U)]
     P = np.zeros((n, n))
     for a, j in enumerate(U):
         P[j, a] = 1.0
@@ -206,6 +208,8 @@ def _linear(plant: Plant, who: str, identify: bool) -> Derivation:
             raise ConfigError("plant.unknown_inputs", f"{who} needs as many unknown inputs as "
                               f"outputs ({plant.p}), got {plant.q}")
     lf = linear_form(plant, who, unknown_inputs=identify)
+    if not identify:
+        _observable(lf.A, lf.C, who)
     F = lf.terms(plant) if any(e != 0 for e in lf.R) else []
     params = dict(n_states=plant.n, n_outputs=plant.p, n_inputs=plant.m, A=_flat(lf.A),
                   B=_flat(lf.B) if plant.m else [], C=_flat(lf.C), F=F,
@@ -215,6 +219,13 @@ def _linear(plant: Plant, who: str, identify: bool) -> Derivation:
         params.update(D=_flat(lf.D), unknown_input_names=list(plant.unknown_inputs))
         figures.update(_unknown_input_structure(lf))
     return Derivation(params, figures, notes=[] if identify else _nominal_note(plant, who))
+
+
+def _observable(A: np.ndarray, C: np.ndarray, who: str) -> None:
+    rank = observability_rank(A, C)
+    if rank < A.shape[0]:
+        raise ConfigError("plant.h", f"{who} needs the linear part observable from h: (A, C) "
+                          f"has PBH rank {rank} < {A.shape[0]} at an eigenvalue of A")
 
 
 def _complex_list(z) -> str:

@@ -25,18 +25,23 @@ def is_plant_file(path: Path) -> bool:
     return Path(path).stem.endswith(PLANT_SUFFIX)
 
 
+def system_plant_file(path: Path) -> Path | None:
+    """The plant file of the system ``path`` belongs to (the longest prefix of its name
+    with one), or None; a plant file has none."""
+    path = Path(path)
+    if is_plant_file(path):
+        return None
+    parts = path.stem.split("_")
+    candidates = (path.with_name("_".join(parts[:k]) + PLANT_SUFFIX + ".yaml")
+                  for k in range(len(parts) - 1, 0, -1))
+    return next((p for p in candidates if p.is_file()), None)
+
+
 def plant_file_for(tuning: Path) -> Path | None:
     """The plant file ``tuning`` runs with, or None (see the module doc).  A tuning file
     that cannot be read gets its plant file when one exists: the replay reports the
     problem."""
-    tuning = Path(tuning)
-    if is_plant_file(tuning):
-        return None
-    parts = tuning.stem.split("_")
-    plant = next((tuning.with_name("_".join(parts[:k]) + PLANT_SUFFIX + ".yaml")
-                  for k in range(len(parts) - 1, 0, -1)
-                  if tuning.with_name("_".join(parts[:k]) + PLANT_SUFFIX + ".yaml").is_file()),
-                 None)
+    plant = system_plant_file(tuning)
     if plant is None:
         return None
     try:
