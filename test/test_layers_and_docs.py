@@ -77,8 +77,11 @@ def test_lower_layers_load_without_rclpy():
 
 def test_readme_documents_every_parameter():
     readme = (ROOT / "README.md").read_text()
+    from fto_ros.cli.simulate_plant import SIM_PARAMS
+    from fto_ros.plant import PLANT_PARAMS
     names = [p.name for p in SETTINGS]
     names += [f"{t}.{p.name}" for t, cls in REGISTRY.items() for p in cls.PARAMS]
+    names += [f"plant.{p.name}" for p in PLANT_PARAMS] + [f"simulation.{p.name}" for p in SIM_PARAMS]
     missing = [n for n in names if f"`{n}`" not in readme]
     assert not missing, f"README.md lacks (regenerate with python -m fto_ros.cli.paramdoc): {missing}"
 
