@@ -133,8 +133,7 @@ def linear_form(plant: Plant, who: str, unknown_inputs: bool = False) -> LinearF
                     continue            # a measured state or a known input: part of R
                 M[i, j] = number(c)
                 rest = rest - c * s
-        linear = {s for s in plant.x + plant.u + plant.d if s in rest.free_symbols}
-        if linear - allowed:
+        if rest.free_symbols - allowed:      # e.g. 3*(v + x) - 3*v: expand to cancel
             rest = sympy.expand(rest)
         bad = sorted((s.name for s in rest.free_symbols - allowed))
         if bad:
