@@ -739,3 +739,33 @@ def test_hosm_publishes_the_load_torque_live(tmp_path):
     finally:
         driver.close()
         assert node.stop() == 0, node.log()
+
+
+@pytest.mark.slow
+def test_plant_block_node_derives_again_on_a_runtime_change(tmp_path):
+    """The node from the DC-motor plant file and a tuning file (two --params-file, as ROS
+    merges them): it declares the plant block, derives single_delay's parameters from it,
+    derives them again (F2 = k y) when single_delay.k changes at run time, and refuses an
+    explicit F2 beside the plant block."""
+    domain = _domain(23)
+    node = NodeProcess(tmp_path, domain, ROOT / "config" / "dc_motor_plant.yaml",
+                       "--params-file", str(ROOT / "config" / "dc_motor_single_delay.yaml"),
+                       "-p", "diagnostics.period:=0.2")
+    driver = Driver(domain)
+    try:
+        st = driver.wait_for(driver.last_status, 30, "the first /diagnostics", node)
+        assert st["values"]["k"] == "100", st["values"]
+        res = driver.set_parameter("single_delay.k", 150.0)
+        assert res.successful, res.reason
+        st = driver.status_where(lambda s: s["values"].get("k") == "150", 10, "k = 150", node)
+        gain = float(st["values"]["noise gain |R| + int|S^-1 (e^-kr - e^-(A1'+2k)r) H| dr"])
+        assert gain > 150.0                        # 113 at k = 100: F2 and the design follow k
+        res = driver.set_parameter("single_delay.F2", ["100*y0"])
+        assert not res.successful and "'single_delay.F2'" in res.reason, res.reason
+        assert "plant block" in res.reason
+        res = driver.set_parameter("plant.f", ["q_dot", "0", "0"])
+        assert not res.successful and "read-only" in res.reason, res.reason
+        node.check_alive()
+    finally:
+        driver.close()
+    assert node.stop() == 0, node.log()
