@@ -51,6 +51,7 @@ setup(
             'fto-simulate = fto_ros.cli.simulate:main',
             'fto-play = fto_ros.nodes.player:main',
             'fto-report = fto_ros.cli.report:main',
+            'fto-design = fto_ros.cli.design:main',
         ],
     },
 )

@@ -28,7 +28,8 @@ from bench_update import matvec_baseline, measure  # noqa: E402
 
 from fto_ros.models import MODELS  # noqa: E402
 from fto_ros.models.simulate import simulate  # noqa: E402
-from fto_ros.runner import load_params_file  # noqa: E402
+from fto_ros.runner.params_file import load_params_files  # noqa: E402
+from fto_ros.runner.plant_files import params_files  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIGS = [("fld_example1_hosm.yaml", "fld_example1"), ("fld_example2_hosm.yaml", "fld_example2"),
@@ -72,7 +73,7 @@ def update_table(samples: int, repeats: int) -> None:
     print("|---|---|---|---|---|---|---|---|")
     rows = []
     for cfg, model in CONFIGS:
-        flat = load_params_file(ROOT / "config" / cfg)
+        flat = load_params_files(params_files(ROOT / "config" / cfg))
         t, y, u = model_stream(model, samples)
         rows.append((cfg, flat, measure(flat, t, y, u, repeats)))
     for n in range(1, 7):
@@ -95,7 +96,7 @@ def replay_table(repeats: int) -> None:
         for bag, cfg in BAGS:
             best = None
             for _ in range(repeats):
-                m = replay(ROOT / "bags" / bag, ROOT / "config" / cfg, Path(tmp) / "out",
+                m = replay(ROOT / "bags" / bag, params_files(ROOT / "config" / cfg), Path(tmp) / "out",
                            overwrite=True, progress=False, plot=False)
                 if best is None or m["replay_speed_x_realtime"] > best["replay_speed_x_realtime"]:
                     best = m

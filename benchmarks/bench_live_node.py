@@ -184,8 +184,10 @@ def measure(kind: str, rate: float, duration: float, domain: int, tmp: str,
     if kind == "echo":
         node_cmd = me + ["--role", "echo"]
     else:
+        from fto_ros.runner.plant_files import params_files   # not in the echo node's process
         node_cmd = [sys.executable, "-m", "fto_ros.nodes.observer_node", "--ros-args",
-                    "--params-file", str(config), "-p", "diagnostics.period:=0.5",
+                    *[a for p in params_files(config) for a in ("--params-file", str(p))],
+                    "-p", "diagnostics.period:=0.5",
                     "-p", f"diagnostics.expected_rate:={float(rate)}"]
         if kind == "observer_js":
             node_cmd += ["-p", "source:=joint_states", "-p", "joint_states.input_joints:=[joint1]"]

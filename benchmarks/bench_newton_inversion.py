@@ -25,7 +25,9 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from bench_update import matvec_baseline, measure, print_table, stream, time_calls  # noqa: E402
 from fto_ros.core.symbolic_model import SymbolicModel  # noqa: E402
 from fto_ros.models import possieri_example as pe  # noqa: E402
-from fto_ros.runner import Runner, load_params_file  # noqa: E402
+from fto_ros.runner import Runner  # noqa: E402
+from fto_ros.runner.params_file import load_params_files  # noqa: E402
+from fto_ros.runner.plant_files import params_files  # noqa: E402
 
 
 def example_stream(n: int, h: float = 1e-3):
@@ -35,7 +37,7 @@ def example_stream(n: int, h: float = 1e-3):
 
 
 def startup(cfg: str, repeats: int) -> float:
-    flat = load_params_file(ROOT / "config" / cfg)
+    flat = load_params_files(params_files(ROOT / "config" / cfg))
     best = np.inf
     for _ in range(repeats):
         t0 = time.perf_counter()
@@ -51,19 +53,19 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     # start-up first: the first construction pays sympy's own import-time caches too
     t0 = time.perf_counter()
-    Runner(load_params_file(ROOT / "config" / "dc_motor_newton.yaml"))
+    Runner(load_params_files(params_files(ROOT / "config" / "dc_motor_newton.yaml")))
     cold = time.perf_counter() - t0
     base = matvec_baseline(args.samples, args.repeats)
     rows = []
     ty = example_stream(args.samples)
     for cfg in ("possieri_example_newton.yaml", "possieri_example_newton_notch.yaml",
                 "possieri_example_newton_ndim.yaml"):
-        rows.append((cfg[:-5], *measure(load_params_file(ROOT / "config" / cfg), *ty, args.repeats)))
+        rows.append((cfg[:-5], *measure(load_params_files(params_files(ROOT / "config" / cfg)), *ty, args.repeats)))
     t, y, u = stream(args.samples)
-    rows.append(("dc_motor_newton", *measure(load_params_file(ROOT / "config" / "dc_motor_newton.yaml"),
+    rows.append(("dc_motor_newton", *measure(load_params_files(params_files(ROOT / "config" / "dc_motor_newton.yaml")),
                                              t, y, u, args.repeats)))
     rows.append(("dc_motor_single_delay (reference)",
-                 *measure(load_params_file(ROOT / "config" / "dc_motor_single_delay.yaml"), t, y, u,
+                 *measure(load_params_files(params_files(ROOT / "config" / "dc_motor_single_delay.yaml")), t, y, u,
                           args.repeats)))
     print_table("config", rows, base)
     print()

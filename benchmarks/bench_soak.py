@@ -53,8 +53,9 @@ def make_bag(minutes: float) -> Path:
 
 
 def noise_level(bag: Path, config: Path, out: Path) -> tuple[np.ndarray, dict]:
-    sh(["fto-replay", bag, "--params", config, "--out", out, "--overwrite", "--no-progress"],
-       stdout=subprocess.DEVNULL)
+    from fto_ros.runner.plant_files import params_files
+    sh(["fto-replay", bag, *(a for p in params_files(config) for a in ("--params", p)),
+        "--out", out, "--overwrite", "--no-progress"], stdout=subprocess.DEVNULL)
     m = json.loads((out / "metrics.json").read_text())
     per = m["errors"]["per_state"]
     return np.array([per[n]["max_abs_after_settle"] for n in m["state_names"]]), m
@@ -83,8 +84,10 @@ def live(bag: Path, config: Path, junk: float, minutes: float, tmp: Path, domain
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(domain),
                ROS_LOG_DIR=str(tmp / "roslog"))
     os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    from fto_ros.runner.plant_files import params_files
+    files = [a for p in params_files(config) for a in ("--params-file", str(p))]
     node = subprocess.Popen([sys.executable, "-m", "fto_ros.nodes.observer_node", "--ros-args",
-                             "--params-file", str(config), "-p", "use_sim_time:=true"],
+                             *files, "-p", "use_sim_time:=true"],
                             cwd=ROOT, env=env, stdout=open(tmp / "node.log", "w"),
                             stderr=subprocess.STDOUT)
     ctx = rclpy.Context()

@@ -18,7 +18,9 @@ import numpy as np
 
 from fto_ros.models import dc_motor
 from fto_ros.models.simulate import simulate
-from fto_ros.runner import Runner, load_params_file
+from fto_ros.runner import Runner
+from fto_ros.runner.params_file import load_params_files
+from fto_ros.runner.plant_files import params_files
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIGS = ["dc_motor_single_delay.yaml", "dc_motor_luenberger.yaml", "dc_motor_hosm.yaml",
@@ -90,7 +92,7 @@ def main(argv=None) -> int:
     base = matvec_baseline(args.samples, args.repeats)
     rows = []
     for cfg in CONFIGS:
-        flat = load_params_file(ROOT / "config" / cfg)
+        flat = load_params_files(params_files(ROOT / "config" / cfg))
         rows.append((flat["observer.type"], *measure(flat, t, y, u, args.repeats)))
     print_table("observer", rows, base)
     return 0

@@ -128,13 +128,12 @@ def test_installed_observer_node_starts(workspace):
     if not (REPO / PKG / 'nodes' / 'observer_node.py').is_file():
         pytest.skip('fto_ros/nodes/observer_node.py does not exist yet')
     share = workspace / 'install' / PKG / 'share' / PKG / 'config'
-    params = [p for p in (share / 'dc_motor_single_delay.yaml', share / 'dc_motor_luenberger.yaml')
-              if p.is_file()]
-    if not params:
-        pytest.skip('no DC-motor params file in config/')
+    # the DC-motor plant file, then a tuning file (as several --params-file merge)
+    params = [share / 'dc_motor_plant.yaml', share / 'dc_motor_single_delay.yaml']
     exe = workspace / 'install' / PKG / 'lib' / PKG / 'observer_node'
     with tempfile.TemporaryFile(mode='w+') as log:  # a file: a chatty node cannot block on a pipe
-        proc = _sourced_run(workspace, [str(exe), '--ros-args', '--params-file', str(params[0])],
+        proc = _sourced_run(workspace, [str(exe), '--ros-args', '--params-file', str(params[0]),
+                                        '--params-file', str(params[1])],
                             stdout=log, stderr=subprocess.STDOUT, text=True)
         try:
             deadline = time.monotonic() + 3.0

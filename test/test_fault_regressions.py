@@ -17,12 +17,15 @@ from fto_ros.bag import BagReader, BagWriter
 from fto_ros.models import dc_motor
 from fto_ros.models.simulate import simulate, uniform_grid
 from fto_ros.replay import cli as replay_cli
-from fto_ros.runner import ERROR, OK, Output, Runner, load_params_file
+from fto_ros.runner import ERROR, OK, Output, Runner
+from fto_ros.runner.params_file import load_params_files
+from fto_ros.runner.plant_files import params_files
 from fto_ros.runner.runner import HELD
 
 ROOT = Path(__file__).resolve().parents[1]
 SD = ROOT / "config" / "dc_motor_single_delay.yaml"
-SD_SAMPLED = ROOT / "config" / "dc_motor_single_delay_sampled.yaml"
+#: fto-replay's --params for it: the DC motor's plant file, then this tuning file
+SD_ARGS = [a for p in params_files(SD) for a in ("--params", str(p))]
 CONFIGS = {c.name: c for c in committed_configs()}
 
 
@@ -49,7 +52,7 @@ def run(r: Runner, t, sim, keep=lambda k: True, offset=0.0):
 def test_single_delay_bridges_any_gap_below_max_gap(motor, gap):
     """Was: a gap between tau and time.max_gap raised 'time outside the buffer' (observer_error)."""
     t, sim = motor
-    r = Runner(load_params_file(SD))
+    r = Runner(load_params_files(params_files(SD)))
     g0 = 600
     g1 = g0 + int(round(gap * 1000))
     out = run(r, t, sim, keep=lambda k: not g0 < k < g1)
@@ -148,8 +151,7 @@ def test_replay_across_a_forward_jump_of_the_log_time(motor, tmp_path, capsys):
     """Was: one /diagnostics per bag-second across a forward jump: 1e6 s never finished."""
     t, sim = motor
     bag = _write_motor_bag(tmp_path / "jump", t, sim, shift_after=1000, shift=1e6)
-    rc = replay_cli.main([str(bag), "--params", str(SD), "--out", str(tmp_path / "o"),
-                          "--no-progress"])
+    rc = replay_cli.main([str(bag), *SD_ARGS, "--out", str(tmp_path / "o"), "--no-progress"])
     assert rc == 0, capsys.readouterr().err
     m = json.loads((tmp_path / "o" / "metrics.json").read_text())
     assert m["restarts_by_reason"] == {"gap": 1}
@@ -159,7 +161,7 @@ def test_replay_across_a_forward_jump_of_the_log_time(motor, tmp_path, capsys):
 def test_diagnostics_error_clears_after_clean_data_and_after_reset(motor):
     """Was: one observer_error restart kept /diagnostics at ERROR for good."""
     t, sim = motor
-    r = Runner(dict(load_params_file(SD), **{"diagnostics.window": 0.5}))
+    r = Runner(dict(load_params_files(params_files(SD)), **{"diagnostics.window": 0.5}))
     obs = r.observer
     real = obs.update_checked
     boom = {"at": 300}
@@ -192,8 +194,8 @@ def test_diagnostics_error_clears_after_clean_data_and_after_reset(motor):
 def test_absurd_finite_values_never_reach_the_observer(motor):
     """Was: y or u = 1e300 for 100 ms left the estimate 1e287 off, nothing counted."""
     t, sim = motor
-    ref = run(Runner(load_params_file(SD)), t, sim)
-    r = Runner(load_params_file(SD))
+    ref = run(Runner(load_params_files(params_files(SD))), t, sim)
+    r = Runner(load_params_files(params_files(SD)))
     out = {}
     for k in range(len(t)):
         if 500 <= k < 600:                             # 100 ms of absurd values on both
@@ -211,7 +213,7 @@ def test_junk_stamps_never_start_a_restart_storm(motor, junk):
     """Was: a JointState stamped 1 s back or at a negative time gave a time_jump restart then
     a gap restart, message after message (2,101 restarts in 60 s)."""
     t, sim = motor
-    r = Runner(load_params_file(SD))
+    r = Runner(load_params_files(params_files(SD)))
     for k in range(len(t)):
         r.set_input(t[k], sim.u_k[k])
         out = r.process(t[k], sim.y[k])
@@ -243,7 +245,7 @@ def test_a_bag_without_usable_samples_fails(motor, tmp_path, capsys, what):
                 bag.float_array("/dc_motor/input", ns + 10 ** 12, sim.u_k[k])   # after the end
             y = {"all_nan": [math.nan], "wrong_length": [1.0, 2.0]}.get(what, sim.y[k])
             bag.float_array("/dc_motor/measured_output", ns, y)
-    rc, err = _cli(capsys, path, "--params", SD, "--out", tmp_path / "o")
+    rc, err = _cli(capsys, path, *SD_ARGS, "--out", tmp_path / "o")
     assert rc == 1 and len(err) == 1 and "no sample accepted" in err[0], err
 
 
@@ -264,7 +266,7 @@ def test_a_damaged_bag_never_loses_messages_silently(tmp_path, capsys, where):
     messages, and the replay still exited 0."""
     bag = tmp_path / "flipped"
     _flip_bytes(ROOT / "bags" / "dc_motor_nominal", bag, where)
-    rc, err = _cli(capsys, bag, "--params", SD, "--out", tmp_path / "o")
+    rc, err = _cli(capsys, bag, *SD_ARGS, "--out", tmp_path / "o")
     if rc == 0:
         # the byte hit something that does not matter (e.g. a value): everything was read
         m = json.loads((tmp_path / "o" / "metrics.json").read_text())
@@ -284,6 +286,6 @@ def test_an_undecodable_message_is_one_line_naming_the_topic(motor, tmp_path, ca
             ns = int(round(t[k] * 1e9))
             bag.float_array("/dc_motor/input", ns, sim.u_k[k])
             raw(ns, b"\x00\x01\x00\x00" + b"\xff" * (3 + k % 5))
-    rc, err = _cli(capsys, path, "--params", SD, "--out", tmp_path / "o")
+    rc, err = _cli(capsys, path, *SD_ARGS, "--out", tmp_path / "o")
     assert rc == 1 and len(err) == 1, err
     assert "/dc_motor/measured_output" in err[0] and "decode" in err[0] and "unexpected" not in err[0]

@@ -27,10 +27,13 @@ from fto_ros.bag import BagReader, BagWriter
 from fto_ros.models import dc_motor
 from fto_ros.models.simulate import simulate, uniform_grid
 from fto_ros.replay import cli as replay_cli
+from fto_ros.runner.plant_files import is_plant_file, params_files
 
 ROOT = Path(__file__).resolve().parents[1]
-CONFIGS = sorted((ROOT / "config").glob("dc_motor_*.yaml")) + [
-    ROOT / "config" / "third_order_prescribed_time.yaml"]
+EXPLICIT = ROOT / "test" / "data" / "dc_motor_explicit"
+#: tuning files (run with their plant file, which a mutation may hit too) and explicit files
+CONFIGS = [c for c in sorted((ROOT / "config").glob("dc_motor_*.yaml")) if not is_plant_file(c)] + [
+    ROOT / "config" / "third_order_prescribed_time.yaml", EXPLICIT / "dc_motor_hosm.yaml"]
 HANG_S = 60.0                 # a hang detector, not a speed test
 N_PARAMS, N_BAGS = 60, 40     # mutations tried (seeded)
 
@@ -110,7 +113,8 @@ _DELETE = object()
 def mutate_params(doc: dict, rng: np.random.Generator, canary: Path) -> tuple[str, str | dict]:
     """(family, mutated document or raw text) of one seeded mutation."""
     doc = copy.deepcopy(doc)
-    params = doc["observer_node"]["ros__parameters"]
+    block = next(iter(doc))                    # observer_node, or /** in a plant file
+    params = doc[block]["ros__parameters"]
     leaves = list(_leaves(params))
     path, value = leaves[rng.integers(len(leaves))]
     kind = rng.integers(14)
@@ -153,7 +157,7 @@ def mutate_params(doc: dict, rng: np.random.Generator, canary: Path) -> tuple[st
         _set(params, path, [1, 2.0])
         return "mixed_list", doc
     if kind == 9:
-        doc = {"another_node": doc["observer_node"]}
+        doc = {"another_node": doc[block]}
         return "block_name", doc
     if kind == 10:
         text = yaml.safe_dump(doc)
@@ -162,7 +166,7 @@ def mutate_params(doc: dict, rng: np.random.Generator, canary: Path) -> tuple[st
         bomb = ("a: &a [1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0]\n"
                 + "".join(f"{c}: &{c} [*{p}, *{p}, *{p}, *{p}, *{p}, *{p}, *{p}, *{p}, *{p}]\n"
                           for p, c in zip("abcdefgh", "bcdefghi")))
-        return "alias_bomb", bomb + yaml.safe_dump(doc).replace("observer_node:", "observer_node:", 1)
+        return "alias_bomb", bomb + yaml.safe_dump(doc)
     if kind == 12:
         params[f"typo_{rng.integers(100)}"] = 1.0
         return "unknown_name", doc
@@ -174,13 +178,15 @@ def mutate_params(doc: dict, rng: np.random.Generator, canary: Path) -> tuple[st
 def test_mutated_params_files_through_fto_replay(short_bag, tmp_path, capsys):
     canary = tmp_path / "executed"
     rng = np.random.default_rng(20261201)
-    docs = [(c, yaml.safe_load(c.read_text())) for c in CONFIGS]
     for i in range(N_PARAMS):
-        cfg, doc = docs[i % len(docs)]
-        family, mutated = mutate_params(doc, rng, canary)
+        files = params_files(CONFIGS[i % len(CONFIGS)])
+        victim = int(rng.integers(len(files)))          # the tuning file, or its plant file
+        family, mutated = mutate_params(yaml.safe_load(files[victim].read_text()), rng, canary)
         path = tmp_path / f"m{i}.yaml"
         path.write_text(mutated if isinstance(mutated, str) else yaml.safe_dump(mutated))
-        rc, err, dt = replay_cli_run(capsys, short_bag, "--params", path, "--out", tmp_path / f"o{i}")
+        files[victim] = path
+        args = [a for f in files for a in ("--params", f)]
+        rc, err, dt = replay_cli_run(capsys, short_bag, *args, "--out", tmp_path / f"o{i}")
         COUNTS[f"cli_params_{family}"] += 1
         check_contract(rc, err, dt)
         assert not canary.exists(), f"text from a params file was executed ({family})"
@@ -228,7 +234,7 @@ def damage_bag(src: Path, dst: Path, rng: np.random.Generator) -> str:
 @pytest.mark.slow
 def test_damaged_bags_through_fto_replay(short_bag, tmp_path, capsys):
     rng = np.random.default_rng(42)
-    params = ROOT / "config" / "dc_motor_luenberger.yaml"
+    params = EXPLICIT / "dc_motor_luenberger.yaml"
     with BagReader(short_bag) as b:
         listed = b.topics["/dc_motor/measured_output"].count
     for i in range(N_BAGS):
@@ -258,7 +264,7 @@ def _node_run(params: Path, tmp_path: Path) -> tuple[int, str]:
 @pytest.mark.slow
 def test_node_and_replay_refuse_the_same_files_alike(short_bag, tmp_path, capsys):
     rng = np.random.default_rng(7)
-    doc = yaml.safe_load((ROOT / "config" / "dc_motor_luenberger.yaml").read_text())
+    doc = yaml.safe_load((EXPLICIT / "dc_motor_luenberger.yaml").read_text())
     seen = 0
     for i in range(40):
         family, mutated = mutate_params(doc, rng, tmp_path / "canary")

@@ -417,9 +417,10 @@ def test_configs_load(name):
     from pathlib import Path
 
     from fto_ros.runner.runner import Runner
-    from fto_ros.runner.settings import load_params_file
+    from fto_ros.runner.plant_files import params_files
+    from fto_ros.runner.settings import load_params_files
     root = Path(__file__).resolve().parent.parent
-    r = Runner(load_params_file(root / "config" / f"{name}.yaml"))
+    r = Runner(load_params_files(params_files(root / "config" / f"{name}.yaml")))
     assert r.observer.TYPE == "hosm"
     assert r.observer.n_inputs == (1 if name.startswith("dc") else 0)
 
@@ -428,8 +429,9 @@ def test_replay_dc_motor_load_reports_unknown_input_errors(tmp_path):
     from pathlib import Path
 
     from fto_ros.replay.replay import replay
+    from fto_ros.runner.plant_files import params_files
     root = Path(__file__).resolve().parent.parent
-    m = replay(root / "bags" / "dc_motor_load", root / "config" / "dc_motor_hosm.yaml",
+    m = replay(root / "bags" / "dc_motor_load", params_files(root / "config" / "dc_motor_hosm.yaml"),
                tmp_path / "out", progress=False, plot=False, after=0.3)
     assert m["samples_rejected"] == 0
     ui = m["unknown_input_errors"]["per_state"]["tau_L"]

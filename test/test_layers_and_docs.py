@@ -17,11 +17,16 @@ PKG = ROOT / "fto_ros"
 #: layer -> top-level modules it must not import (DESIGN.md, "Layers")
 FORBIDDEN = {
     "core": {"rclpy", "rosbags", "mcap", "matplotlib", "fto_ros.observers", "fto_ros.runner",
-             "fto_ros.nodes", "fto_ros.replay", "fto_ros.bag", "fto_ros.cli", "fto_ros.models"},
+             "fto_ros.nodes", "fto_ros.replay", "fto_ros.bag", "fto_ros.cli", "fto_ros.models",
+             "fto_ros.plant"},
     "models": {"rclpy", "rosbags", "mcap", "fto_ros.observers", "fto_ros.runner", "fto_ros.nodes",
                "fto_ros.replay", "fto_ros.bag", "fto_ros.cli"},
     "observers": {"rclpy", "rosbags", "mcap", "fto_ros.runner", "fto_ros.nodes", "fto_ros.replay",
-                  "fto_ros.bag", "fto_ros.cli"},
+                  "fto_ros.bag", "fto_ros.cli", "fto_ros.plant"},
+    # the plant block and the derivations: above observers/ (they build their parameters),
+    # below runner/ (which expands the plant block before it builds an observer)
+    "plant": {"rclpy", "rosbags", "mcap", "matplotlib", "fto_ros.runner", "fto_ros.nodes",
+              "fto_ros.replay", "fto_ros.bag", "fto_ros.cli", "fto_ros.models"},
     "runner": {"rclpy", "rosbags", "mcap", "fto_ros.nodes", "fto_ros.replay", "fto_ros.bag", "fto_ros.cli"},
     "bag": {"rclpy", "fto_ros.nodes", "fto_ros.replay", "fto_ros.cli"},
     "replay": {"rclpy", "fto_ros.nodes"},
@@ -61,21 +66,32 @@ def test_layers_import_only_downwards(layer):
 def test_lower_layers_load_without_rclpy():
     """Import core, models, observers, runner with rclpy made unimportable."""
     code = ("import sys; sys.modules['rclpy'] = None\n"
-            "import fto_ros.core.discretize, fto_ros.models.dc_motor, fto_ros.observers, fto_ros.runner\n"
-            "from fto_ros.runner import Runner, load_params_file\n"
-            "Runner(load_params_file('config/dc_motor_single_delay.yaml'))\n")
+            "import fto_ros.core.discretize, fto_ros.models.dc_motor, fto_ros.observers, fto_ros.plant\n"
+            "import fto_ros.runner\n"
+            "from fto_ros.runner import Runner\n"
+            "from fto_ros.runner.params_file import load_params_files\n"
+            "from fto_ros.runner.plant_files import params_files\n"
+            "Runner(load_params_files(params_files('config/dc_motor_single_delay.yaml')))\n")
     subprocess.run([sys.executable, "-c", code], cwd=ROOT, check=True)
 
 
 def test_readme_documents_every_parameter():
     readme = (ROOT / "README.md").read_text()
+    from fto_ros.cli.simulate_plant import SIM_PARAMS
+    from fto_ros.plant import PLANT_PARAMS
     names = [p.name for p in SETTINGS]
     names += [f"{t}.{p.name}" for t, cls in REGISTRY.items() for p in cls.PARAMS]
+    names += [f"plant.{p.name}" for p in PLANT_PARAMS] + [f"simulation.{p.name}" for p in SIM_PARAMS]
     missing = [n for n in names if f"`{n}`" not in readme]
     assert not missing, f"README.md lacks (regenerate with python -m fto_ros.cli.paramdoc): {missing}"
 
 
 def test_every_config_builds():
-    from fto_ros.runner import Runner, load_params_file
+    """Every tuning file, with its system's plant file when it needs one (plant files are
+    no configs of their own: runner/plant_files.py)."""
+    from fto_ros.runner import Runner
+    from fto_ros.runner.params_file import load_params_files
+    from fto_ros.runner.plant_files import is_plant_file, params_files
     for path in sorted((ROOT / "config").glob("*.yaml")):
-        Runner(load_params_file(path))
+        if not is_plant_file(path):
+            Runner(load_params_files(params_files(path)))

@@ -8,6 +8,8 @@ observer (11) beats the n-dimensional one (21).  Bounds are measured values with
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -17,7 +19,9 @@ from fto_ros.observers import REGISTRY
 from fto_ros.observers.base import SampleRejected, resolve
 from fto_ros.observers.newton_inversion import NewtonInversionObserver as NI
 from fto_ros.observers.newton_inversion import implicit_flow
-from fto_ros.runner import Runner, load_params_file
+from fto_ros.runner import Runner
+from fto_ros.runner.params_file import load_params_files
+from fto_ros.runner.plant_files import params_files
 
 NOTCH = dict(filter_numerator=[1.0, 0.0, 2500.0], filter_denominator=[1.0, 5.0, 2500.0])
 PAPER_LL = dict(scheme="livne_levant", lambdas=[1.1, 1.5, 3.0])
@@ -188,9 +192,9 @@ def test_bad_configuration_is_refused_naming_the_parameter(over, param):
 def test_params_files_load_and_dc_motor_model():
     for name in ("possieri_example_newton", "possieri_example_newton_notch",
                  "possieri_example_newton_ndim", "dc_motor_newton"):
-        r = Runner(load_params_file(f"config/{name}.yaml"))
+        r = Runner(load_params_files(params_files(Path(f"config/{name}.yaml"))))
         assert r.observer_type == "newton_inversion"
-    obs = Runner(load_params_file("config/dc_motor_newton.yaml")).observer
+    obs = Runner(load_params_files(params_files(Path("config/dc_motor_newton.yaml")))).observer
     assert obs.n_states == 3 and obs.Du is None            # O_2 does not depend on V
     assert obs.startup["rank_at_x0"] == 3
 

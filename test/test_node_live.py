@@ -53,7 +53,7 @@ from std_msgs.msg import Float64MultiArray  # noqa: E402
 from std_srvs.srv import SetBool, Trigger  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-CONFIG = ROOT / "config" / "dc_motor_luenberger.yaml"
+CONFIG = ROOT / "test" / "data" / "dc_motor_explicit" / "dc_motor_luenberger.yaml"
 STATUS_NAME = "observer_node: observer"
 NODE = "/observer_node"
 TOL = np.array([1e-3, 1e-2, 5e-2])  # (q, q_dot, I), see the module docstring
@@ -711,7 +711,7 @@ def test_hosm_publishes_the_load_torque_live(tmp_path):
     from fto_ros.bag import read_messages
     truth = {t: np.array(m.data) for _, t, m in read_messages(bag, ["/dc_motor/true_state"])}
     torque = {t: m.data[0] for _, t, m in read_messages(bag, ["/dc_motor/true_unknown_input"])}
-    doc = yaml.safe_load((ROOT / "config" / "dc_motor_hosm.yaml").read_text())
+    doc = yaml.safe_load((ROOT / "test" / "data" / "dc_motor_explicit" / "dc_motor_hosm.yaml").read_text())
     doc["observer_node"]["ros__parameters"]["diagnostics"].update(period=0.2, expected_rate=0.0)
     params = tmp_path / "hosm.yaml"
     params.write_text(yaml.safe_dump(doc, sort_keys=False))
@@ -739,3 +739,33 @@ def test_hosm_publishes_the_load_torque_live(tmp_path):
     finally:
         driver.close()
         assert node.stop() == 0, node.log()
+
+
+@pytest.mark.slow
+def test_plant_block_node_derives_again_on_a_runtime_change(tmp_path):
+    """The node from the DC-motor plant file and a tuning file (two --params-file, as ROS
+    merges them): it declares the plant block, derives single_delay's parameters from it,
+    derives them again (F2 = k y) when single_delay.k changes at run time, and refuses an
+    explicit F2 beside the plant block."""
+    domain = _domain(23)
+    node = NodeProcess(tmp_path, domain, ROOT / "config" / "dc_motor_plant.yaml",
+                       "--params-file", str(ROOT / "config" / "dc_motor_single_delay.yaml"),
+                       "-p", "diagnostics.period:=0.2")
+    driver = Driver(domain)
+    try:
+        st = driver.wait_for(driver.last_status, 30, "the first /diagnostics", node)
+        assert st["values"]["k"] == "100", st["values"]
+        res = driver.set_parameter("single_delay.k", 150.0)
+        assert res.successful, res.reason
+        st = driver.status_where(lambda s: s["values"].get("k") == "150", 10, "k = 150", node)
+        gain = float(st["values"]["noise gain |R| + int|S^-1 (e^-kr - e^-(A1'+2k)r) H| dr"])
+        assert gain > 150.0                        # 113 at k = 100: F2 and the design follow k
+        res = driver.set_parameter("single_delay.F2", ["100*y0"])
+        assert not res.successful and "'single_delay.F2'" in res.reason, res.reason
+        assert "plant block" in res.reason
+        res = driver.set_parameter("plant.f", ["q_dot", "0", "0"])
+        assert not res.successful and "read-only" in res.reason, res.reason
+        node.check_alive()
+    finally:
+        driver.close()
+    assert node.stop() == 0, node.log()

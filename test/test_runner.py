@@ -24,7 +24,7 @@ from fto_ros.runner.runner import HELD
 
 ROOT = Path(__file__).resolve().parents[1]
 # the pole-placement Luenberger: its poles make the runner tests' expectations exact
-CONFIG = {name: load_params_file(ROOT / "config" / f"dc_motor_{file}.yaml")
+CONFIG = {name: load_params_file(ROOT / "test" / "data" / "dc_motor_explicit" / f"dc_motor_{file}.yaml")
           for name, file in (("luenberger", "luenberger_poles"), ("single_delay", "single_delay"),
                              ("single_delay_sampled", "single_delay_sampled"))}
 CONTINUOUS = ("luenberger", "single_delay")

@@ -14,8 +14,8 @@ from fto_ros.runner import Runner, SETTINGS, load_params_file
 from fto_ros.runner import settings as S
 
 ROOT = Path(__file__).resolve().parents[1]
-LUENBERGER = ROOT / "config" / "dc_motor_luenberger.yaml"
-SINGLE_DELAY = ROOT / "config" / "dc_motor_single_delay.yaml"
+LUENBERGER = ROOT / "test" / "data" / "dc_motor_explicit" / "dc_motor_luenberger.yaml"
+SINGLE_DELAY = ROOT / "test" / "data" / "dc_motor_explicit" / "dc_motor_single_delay.yaml"
 
 
 @pytest.fixture(scope="module")
@@ -63,7 +63,7 @@ def test_real_configs_load(lu_flat, sd_flat):
     assert not any(isinstance(v, dict) for v in lu_flat.values())
     Runner(lu_flat)
     Runner(sd_flat)
-    Runner(load_params_file(ROOT / "config" / "dc_motor_single_delay_sampled.yaml"))
+    Runner(load_params_file(LUENBERGER.with_name("dc_motor_single_delay_sampled.yaml")))
 
 
 def write(tmp_path, text, name="p.yaml"):

@@ -21,7 +21,7 @@ from fto_ros.observers.base import SampleRejected, resolve
 from fto_ros.observers.single_delay import SingleDelayObserver, design
 from fto_ros.runner import Runner, load_params_file
 
-CONFIG = "config/dc_motor_single_delay.yaml"
+CONFIG = "test/data/dc_motor_explicit/dc_motor_single_delay.yaml"
 
 
 def dc_cfg(**over):

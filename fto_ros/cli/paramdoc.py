@@ -7,7 +7,9 @@ from __future__ import annotations
 
 from ..observers import REGISTRY
 from ..observers.base import Param
+from ..plant.block import PLANT_PARAMS
 from ..runner.settings import SETTINGS
+from .simulate_plant import SIM_PARAMS
 
 
 def _default(p: Param) -> str:
@@ -43,9 +45,15 @@ def table(params, prefix: str = "") -> str:
 def main() -> int:
     print("#### Node, runner and I/O parameters\n")
     print(table(SETTINGS))
+    print("\n#### `plant` — the plant block, written once; each observer derives its own "
+          "parameters from it (docs/plant.md)\n")
+    print(table(PLANT_PARAMS, prefix="plant."))
     for name, cls in sorted(REGISTRY.items()):
         print(f"\n#### `{name}` — {cls.DESCRIPTION}\n")
         print(table(cls.PARAMS, prefix=name + "."))
+    print("\n#### `simulation` — `fto-simulate --params` (node name `fto_simulate`; "
+          "docs/bring_your_own_plant.md)\n")
+    print(table(SIM_PARAMS, prefix="simulation."))
     return 0
 
 

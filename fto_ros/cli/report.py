@@ -14,7 +14,10 @@ The pairs are data, not code (:func:`plan`):
   registered observer (others are skipped with a note);
 - a config ``X_<variant>.yaml`` (e.g. ``dc_motor_single_delay_sampled.yaml``)
   replaces ``X.yaml`` for the bag ``dc_motor_<variant>`` and is used for no
-  other bag.
+  other bag;
+- ``CONFIG_DIR/<system>_plant.yaml`` is a system's plant file, not a config: it is
+  merged first for every ``<system>_*.yaml`` that has no model of its own
+  (:mod:`fto_ros.runner.plant_files`).
 
 Exit code 0 when every replay succeeded, 1 otherwise (the table is printed
 either way, failed rows included), 2 for usage errors.
@@ -48,10 +51,23 @@ class Pair:
     error: str | None = None
     #: the example system (table) this pair belongs to, when not the DC motor
     system: str | None = None
+    #: the system's plant file, merged before ``config`` (None: the config is complete)
+    plant: Path | None = None
 
     @property
     def name(self) -> str:
         return f"{self.bag.name}__{self.config.stem}"
+
+    @property
+    def params(self) -> list[Path]:
+        """The params files of the replay, merged in order."""
+        return [self.plant, self.config] if self.plant else [self.config]
+
+
+def _configs(config_dir: Path, pattern: str) -> list[Path]:
+    """The params files matching ``pattern``, plant files left out (they are no configs)."""
+    from ..runner.plant_files import is_plant_file
+    return [p for p in sorted(config_dir.glob(pattern)) if not is_plant_file(p)]
 
 
 def _ordered(names, preferred) -> list:
@@ -75,7 +91,8 @@ def plan(bags_dir: Path, config_dir: Path) -> tuple[list[Pair], list[str]]:
     present = {p.name for p in bags_dir.glob(f"{SYSTEM}_*") if p.is_dir() or p.suffix == ".mcap"}
     bag_names = _ordered(present | set(REQUIRED_BAGS), BAG_ORDER)
     variants = {b[len(SYSTEM) + 1:] for b in bag_names} | {b[len(SYSTEM) + 1:] for b in BAG_ORDER}
-    configs = {p.stem: p for p in sorted(config_dir.glob(f"{SYSTEM}_*.yaml"))}
+    from ..runner.plant_files import plant_file_for
+    configs = {p.stem: p for p in _configs(config_dir, f"{SYSTEM}_*.yaml")}
     if not configs:
         notes.append(f"no {SYSTEM}_*.yaml params files in {config_dir}")
     # a config 'X_<variant>' is the variant of 'X' when 'X' exists too
@@ -94,7 +111,7 @@ def plan(bags_dir: Path, config_dir: Path) -> tuple[list[Pair], list[str]]:
         variant = bag[len(SYSTEM) + 1:]
         for stem in usable:
             cfg = configs.get(f"{stem}_{variant}", configs[stem])
-            pairs.append(Pair(bags_dir / bag, cfg))
+            pairs.append(Pair(bags_dir / bag, cfg, plant=plant_file_for(cfg)))
     return pairs, notes
 
 
@@ -113,12 +130,13 @@ def plan_examples(bags_dir: Path, config_dir: Path) -> list[Pair]:
     """The other example systems: every bag ``BAGS_DIR/<system>[_<variant>]`` (not the DC
     motor's) with every ``CONFIG_DIR/<system>_*.yaml`` (e.g. the prescribed-time examples;
     ``possieri_example_sinusoid`` is a variant of ``possieri_example``)."""
+    from ..runner.plant_files import plant_file_for
     pairs = []
     for bag in sorted(p for p in bags_dir.iterdir() if p.is_dir() and not p.name.startswith(SYSTEM)):
         system = example_system(bag.name, config_dir)
         if system is not None:
-            pairs += [Pair(bag, cfg, system=system)
-                      for cfg in sorted(config_dir.glob(f"{system}_*.yaml"))]
+            pairs += [Pair(bag, cfg, system=system, plant=plant_file_for(cfg))
+                      for cfg in _configs(config_dir, f"{system}_*.yaml")]
     return pairs
 
 
@@ -295,7 +313,7 @@ def _main(args) -> int:
                        f"--out {p.bag} ...)")
         else:
             try:
-                p.metrics = replay(p.bag, p.config, p.out, overwrite=True,
+                p.metrics = replay(p.bag, p.params, p.out, overwrite=True,
                                    progress=not args.no_progress)
             except (ConfigError, BagError, ReplayError, OSError) as err:
                 p.error = one_line(err)

@@ -5,6 +5,11 @@ Usage::
     fto-simulate MODEL --out BAG [--duration S] [--rate HZ] [--noise SIGMA]
                  [--uncertainty] [--seed N]
                  [--sample-times FILE | --sparse-min S --sparse-max S] [--overwrite]
+    fto-simulate --params FILE [--params FILE ...] [--set NAME=VALUE] --out BAG [...]
+
+The second form simulates a user's plant block with the ``simulation.*`` parameters of the
+params files (:mod:`fto_ros.cli.simulate_plant`); ``--duration``, ``--rate``, ``--noise``
+and ``--seed`` override them when given.
 
 Topics (``SYS`` = the model name, e.g. ``dc_motor``):
 
@@ -66,21 +71,26 @@ def build_parser() -> argparse.ArgumentParser:
         description="Simulate a plant and record a rosbag2 (MCAP) bag with its measured "
                     "output, input, joint_states, ground truth and /clock.",
         epilog=f"models: {models}")
-    parser.add_argument("model", metavar="MODEL", help=f"plant to simulate; one of: "
-                        f"{', '.join(sorted(MODELS))}")
+    parser.add_argument("model", metavar="MODEL", nargs="?", help=f"plant to simulate; one of: "
+                        f"{', '.join(sorted(MODELS))} (or --params)")
+    parser.add_argument("--params", action="append", default=[], metavar="FILE",
+                        help="params files with a plant block and simulation.* parameters "
+                             "(instead of MODEL; several merge in order)")
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                        help="with --params: override one parameter, e.g. simulation.seed=3")
     parser.add_argument("--out", required=True, metavar="BAG",
                         help="output bag directory (must not exist unless --overwrite)")
-    parser.add_argument("--duration", type=positive_float, default=10.0, metavar="S",
+    parser.add_argument("--duration", type=positive_float, default=None, metavar="S",
                         help="simulated time in seconds (default 10)")
-    parser.add_argument("--rate", type=positive_float, default=1000.0, metavar="HZ",
+    parser.add_argument("--rate", type=positive_float, default=None, metavar="HZ",
                         help="base rate of input, ground truth and clock, and of the "
                              "measurements unless sparse (default 1000)")
-    parser.add_argument("--noise", type=non_negative_float, default=0.0, metavar="SIGMA",
+    parser.add_argument("--noise", type=non_negative_float, default=None, metavar="SIGMA",
                         help="std. deviation of Gaussian measurement noise on every output "
                              "(default 0: exact measurements)")
     parser.add_argument("--uncertainty", action="store_true",
                         help="add the model's default process uncertainty delta1(t)")
-    parser.add_argument("--seed", type=int, default=0, metavar="N",
+    parser.add_argument("--seed", type=int, default=None, metavar="N",
                         help="seed of the noise and of the sparse sampling (default 0)")
     parser.add_argument("--sample-times", metavar="FILE",
                         help="measurement instants in seconds (whitespace/comma separated, "
@@ -95,6 +105,15 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--overwrite", action="store_true",
                         help="replace BAG if it exists (only if it is a bag directory)")
     return parser
+
+
+def _plant_model(args):
+    """(spec, simulation settings, plant) of the --params files (ConfigError for bad ones)."""
+    from ..runner.params_file import parse_override
+    from .simulate_plant import load, plant_spec
+    overrides = dict(parse_override(text) for text in args.set)
+    plant, sim = load(args.params, overrides)
+    return plant_spec(plant, sim, ", ".join(args.params)), sim, plant
 
 
 def read_sample_times(path: str) -> np.ndarray:
@@ -148,13 +167,33 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run ``fto-simulate``; returns the exit code (argparse errors exit with 2)."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    spec = MODELS.get(args.model)
-    if spec is None:
-        parser.error(f"unknown model {args.model!r}; known models: {', '.join(sorted(MODELS))}")
+    defaults = dict(duration=10.0, rate=1000.0, noise=0.0, seed=0)
+    if args.params:
+        if args.model is not None:
+            parser.error("give MODEL or --params, not both")
+        try:
+            spec, sim_cfg, plant = _plant_model(args)
+        except ValueError as err:           # ConfigError: one line, bad parameters
+            print(f"{PROG}: error: {' '.join(str(err).split())}", file=sys.stderr)
+            return 2
+        defaults.update(duration=sim_cfg["duration"], rate=sim_cfg["rate"], seed=sim_cfg["seed"],
+                        noise=np.asarray(sim_cfg["noise"] or [0.0], dtype=float))
+        if args.uncertainty or args.output_disturbance:
+            parser.error("--uncertainty and --output-disturbance belong to the built-in models")
+    else:
+        if args.set:
+            parser.error("--set needs --params")
+        spec = MODELS.get(args.model) if args.model is not None else None
+        if spec is None:
+            parser.error(f"unknown model {args.model!r}; known models: "
+                         f"{', '.join(sorted(MODELS))} (or give --params)")
+    for key, value in defaults.items():
+        if getattr(args, key) is None:
+            setattr(args, key, value)
     if args.duration * args.rate > 5e7:
         parser.error(f"--duration x --rate = {args.duration * args.rate:.3g} samples is too many "
                      f"(limit 5e7)")
-    if args.noise > 0 and spec.p == 0:
+    if np.any(np.asarray(args.noise) > 0) and spec.p == 0:
         parser.error(f"model {spec.name} has no outputs to add noise to")
     disturbance = getattr(spec, "output_disturbance", None)
     if args.output_disturbance and disturbance is None:
@@ -184,8 +223,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     meas_idx = np.searchsorted(t_all, t_meas)
     y_true = np.array([np.atleast_1d(spec.output(x)) for x in sim.x[meas_idx]]) \
         .reshape(t_meas.size, spec.p)
-    y = y_true + args.noise * noise_rng.standard_normal(y_true.shape) if args.noise > 0 \
-        else y_true
+    y = y_true + np.asarray(args.noise) * noise_rng.standard_normal(y_true.shape) \
+        if np.any(np.asarray(args.noise) > 0) else y_true
     if args.output_disturbance:
         y = y + np.array([np.atleast_1d(disturbance(float(tk))) for tk in t_meas]).reshape(y.shape)
     zeta_fn = getattr(spec, "unknown_input", None)
@@ -221,9 +260,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         "duration": args.duration,
         "base_rate": args.rate,
         "input_profile": spec.input_description,
-        "input_hold": "zero-order hold at the base-rate instants",
+        "input_hold": "zero-order hold at the base-rate instants" if not args.params or
+                      sim_cfg["input_hold"] == "zoh" else "smooth: the plant saw u(t); the bag has "
+                                                      "its samples at the base-rate instants",
         "measurement_sampling": sampling,
-        "measurement_noise": {"type": "gaussian", "sigma": args.noise,
+        "measurement_noise": {"type": "gaussian", "sigma": np.asarray(args.noise).tolist(),
                               "applies_to": list(spec.output_names)},
         "uncertainty": {"enabled": bool(args.uncertainty),
                         "description": spec.uncertainty_description if args.uncertainty
@@ -234,6 +275,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         "topics": topics,
         "log_time": "sample time, round(t * 1e9) ns, t = 0 at the start",
     }
+    if args.params:
+        settings["params_files"] = [os.path.abspath(p) for p in args.params]
+        settings["plant"] = {"states": plant.states, "inputs": plant.inputs,
+                             "unknown_inputs": plant.unknown_inputs,
+                             "constants": plant.constant_texts, "f": plant.f_texts,
+                             "h": plant.h_texts}
     if zeta is not None:
         settings["unknown_input"] = {"names": list(spec.unknown_input_names),
                                      "description": spec.unknown_input_description}
@@ -276,7 +323,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     size = sum(p.stat().st_size for p in out.iterdir() if p.is_file())
     listing = ", ".join(f"{name} {count}" for name, count in sorted(counts.items()))
     print(f"{PROG}: wrote {out} ({size / 1024:.0f} KiB, {sum(counts.values())} messages, "
-          f"{t_all[-1] - t_all[0]:.3f} s, {sampling['mode']} sampling, noise {args.noise:g}, "
+          f"{t_all[-1] - t_all[0]:.3f} s, {sampling['mode']} sampling, noise "
+          f"{np.asarray(args.noise).tolist()}, "
           f"uncertainty {'on' if args.uncertainty else 'off'}, seed {args.seed}) in "
           f"{total:.2f} s (simulation {sim_time:.2f} s); topics: {listing}")
     return 0

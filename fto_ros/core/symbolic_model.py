@@ -42,7 +42,7 @@ _NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 _RESERVED = set(FUNCTIONS) | {"pi", "E", "Integer", "Float", "Rational", "Symbol", "t"}
 
 
-def _check_names(names: Sequence[str], parameter: str, taken: set[str]) -> None:
+def check_names(names: Sequence[str], parameter: str, taken: set[str]) -> None:
     for name in names:
         if not isinstance(name, str) or not _NAME.match(name) or keyword.iskeyword(name):
             raise ConfigError(parameter, f"{name!r} is not a valid name (letters, digits and _ "
@@ -65,7 +65,7 @@ def parse_constants(texts: Sequence[str], parameter: str, taken: set[str]) -> di
         if not isinstance(text, str) or text.count("=") != 1:
             raise ConfigError(where, f"expected 'name=value', got {text!r}")
         name, expr_text = (s.strip() for s in text.split("="))
-        _check_names([name], where, taken)
+        check_names([name], where, taken)
         expr = parse(expr_text, list(syms.values()), where)
         val = expr.xreplace({syms[k]: sympy.Float(v) for k, v in values.items()})
         try:
@@ -93,8 +93,8 @@ class SymbolicModel:
         if not states:
             raise ConfigError(P + "states", "give the state names, e.g. [q, q_dot, current]")
         taken: set[str] = set()
-        _check_names(states, P + "states", taken)
-        _check_names(inputs, P + "inputs", taken)
+        check_names(states, P + "states", taken)
+        check_names(inputs, P + "inputs", taken)
         consts = parse_constants(list(constants or []), P + "constants", taken)
         n, m = len(states), len(inputs)
         if f is None or len(f) != n:

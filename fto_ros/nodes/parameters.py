@@ -19,6 +19,7 @@ from rclpy.parameter import Parameter
 from ..core.errors import ConfigError
 from ..observers import REGISTRY, observer_class
 from ..observers.base import Param
+from ..plant.block import PLANT_PARAMS, PREFIX as PLANT_PREFIX
 from ..runner.settings import ROS_BUILTIN, SETTINGS
 
 #: Param.kind -> ROS 2 parameter type
@@ -96,7 +97,8 @@ class NodeParameters:
                               "-p observer.type:=NAME")
         cls = observer_class(type_name)
         specs = [(p.name, p) for p in SETTINGS] + \
-                [(f"{cls.TYPE}.{p.name}", p) for p in cls.PARAMS]
+                [(f"{cls.TYPE}.{p.name}", p) for p in cls.PARAMS] + \
+                [(PLANT_PREFIX + p.name, p) for p in PLANT_PARAMS]      # the plant block
         for full, p in specs:
             if node.has_parameter(full):
                 value = typed_override(p, full, node.get_parameter(full))

@@ -13,11 +13,13 @@ from .global_norm import GlobalNormObserver
 from .high_gain import HighGainObserver
 from .hosm import HosmObserver
 from .newton_inversion import NewtonInversionObserver
+from .ekf import ExtendedKalmanFilter
 
 REGISTRY: dict[str, type[Observer]] = {
     cls.TYPE: cls for cls in (NewtonInversionObserver, SingleDelayObserver, PrescribedTimeObserver, LuenbergerObserver, HosmObserver)
 }
 REGISTRY.update({cls.TYPE: cls for cls in (GlobalNormObserver, HighGainObserver)})
+REGISTRY[ExtendedKalmanFilter.TYPE] = ExtendedKalmanFilter
 
 
 def observer_class(type_name: str) -> type[Observer]:

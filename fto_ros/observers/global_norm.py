@@ -252,8 +252,10 @@ class GlobalNormObserver(Observer):
               min=2, max=6),
         Param("form", "string", "full", "full-order observer (eq. 85) or reduced-order (eq. 83-84)",
               choices=("full", "reduced")),
-        Param("f", "string", None, "f_n(y, x1, .., xn): the last state's derivative, y standing "
-              "for x0, e.g. '-x1 + y**3'"),
+        Param("f", "string", None, "f_n(y, x1, .., xn, u0, ..): the last state's derivative, y "
+              "standing for x0, u0.. the known inputs, e.g. '-x1 + y**3 + u0'"),
+        Param("n_inputs", "int", 0, "number of known inputs u0.. in f (held between samples)",
+              min=0, max=32),
         Param("gamma_1", "string", "y**2", "gamma_1(y) >= 0 of the norm estimator w' = -w + "
               "gamma_1(y) (Assumption 1: V' <= -V + gamma_1(x0))"),
         Param("gamma_hat", "string", "1 + w", "gamma_hat(w) >= 1, nondecreasing, >= gamma(4w+2) "
@@ -278,7 +280,7 @@ class GlobalNormObserver(Observer):
     def __init__(self, cfg: dict):
         m = cfg["n_states"]
         n = m - 1
-        self.n_states, self.n_outputs, self.n_inputs = m, 1, 0
+        self.n_states, self.n_outputs, self.n_inputs = m, 1, cfg["n_inputs"]
         self.reduced = cfg["form"] == "reduced"
         self.quadratic = cfg["output_hold"] == "quadratic"
         self.state_names = cfg["state_names"] or [f"x{i}" for i in range(m)]
@@ -287,7 +289,9 @@ class GlobalNormObserver(Observer):
         if cfg["f"] is None:
             raise ConfigError(P + "f", "required: f_n(y, x1, .., xn), e.g. '-x1 + y**3'")
         xnames = [f"x{i}" for i in range(1, m)]
-        self.f = NamedFunction([cfg["f"]], ["y"] + xnames, P + "f")
+        self.f = NamedFunction([cfg["f"]], ["y"] + xnames + [f"u{j}" for j in range(self.n_inputs)],
+                               P + "f")
+        self._u = (0.0,) * self.n_inputs        # the input held over the current step
         self.gamma_1 = NamedFunction([cfg["gamma_1"]], ["y"], P + "gamma_1")
         wsym = sympy.Symbol("w", real=True)
         gh = parse(cfg["gamma_hat"], [wsym], P + "gamma_hat")
@@ -410,7 +414,7 @@ class GlobalNormObserver(Observer):
 
     def _model(self, y, xbar, gh):
         try:
-            fv = self.f(y, *xbar)[0]
+            fv = self.f(y, *xbar, *self._u)[0]
         except OverflowError:
             fv = float("nan")
         if fv != fv:
@@ -432,6 +436,7 @@ class GlobalNormObserver(Observer):
         self._y, self._g1 = yk, self.gamma_1(yk)[0]
         self._gh, self._k = gh, k
         self._residual = abs(yk - self._xhat[0])
+        self._u = tuple(u)
 
     def _step(self, s, h, y, u):
         yk = float(y[0])
@@ -450,6 +455,7 @@ class GlobalNormObserver(Observer):
         self._yprev, self._hprev = self._y, h
         self._y = yk
         self._residual = resid
+        self._u = tuple(u)
 
     def _advance(self, h, yk):
         m = self.n_states

@@ -37,7 +37,10 @@ class HighGainObserver(Observer):
     HEALTH_NAME = "high gain L"
     PARAMS = (
         Param("n_states", "int", 2, "number of states x0 .. xn", min=2, max=6),
-        Param("f", "string", None, "f_n(y, x1, .., xn), y standing for x0, e.g. '-x1 + y**3'"),
+        Param("f", "string", None, "f_n(y, x1, .., xn, u0, ..), y standing for x0, u0.. the known "
+              "inputs, e.g. '-x1 + y**3 + u0'"),
+        Param("n_inputs", "int", 0, "number of known inputs u0.. in f (held between samples)",
+              min=0, max=32),
         Param("L", "double", 10.0, "the high gain L (> 0): error poles at -L times the roots of "
               "the alpha polynomial", min=1e-9),
         Param("alpha", "double_array", [], "alpha_0 .. alpha_n, s^(n+1) + alpha_0 s^n + .. + "
@@ -54,10 +57,12 @@ class HighGainObserver(Observer):
 
     def __init__(self, cfg: dict):
         m = cfg["n_states"]
-        self.n_states, self.n_outputs, self.n_inputs = m, 1, 0
+        self.n_states, self.n_outputs, self.n_inputs = m, 1, cfg["n_inputs"]
         if cfg["f"] is None:
             raise ConfigError(P + "f", "required: f_n(y, x1, .., xn)")
-        self.f = NamedFunction([cfg["f"]], ["y"] + [f"x{i}" for i in range(1, m)], P + "f")
+        self.f = NamedFunction([cfg["f"]], ["y"] + [f"x{i}" for i in range(1, m)]
+                               + [f"u{j}" for j in range(self.n_inputs)], P + "f")
+        self._u = (0.0,) * self.n_inputs        # the input held over the current step
         alpha = cfg["alpha"] or [float(math.comb(m, i + 1)) for i in range(m)]
         if len(alpha) != m:
             raise ConfigError(P + "alpha", f"expected {m} values, got {len(alpha)}")
@@ -96,7 +101,7 @@ class HighGainObserver(Observer):
             clipped = [min(M, max(-M, v)) for v in xbar]
             sat = clipped != list(xbar)
             xbar = clipped
-        fv = self.f(*xbar)[0] if self.on_estimate else self.f(y, *xbar)[0]
+        fv = self.f(*xbar, *self._u)[0] if self.on_estimate else self.f(y, *xbar, *self._u)[0]
         if fv != fv or math.isinf(fv):
             raise SampleRejected("non_finite_model_term")
         return fv, sat
@@ -104,6 +109,7 @@ class HighGainObserver(Observer):
     def _first(self, y, u, gap):
         self._y = float(y[0])
         self._residual = abs(self._y - self._x[0])
+        self._u = tuple(u)
 
     def _step(self, s, h, y, u):
         yk = float(y[0])
@@ -130,6 +136,7 @@ class HighGainObserver(Observer):
         self._yprev, self._hprev = self._y, h
         self._y = yk
         self._residual = abs(yk - x[0])
+        self._u = tuple(u)
 
     @property
     def estimate(self):

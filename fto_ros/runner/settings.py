@@ -11,6 +11,7 @@ from typing import Any, Mapping
 from ..core.errors import ConfigError
 from ..observers import REGISTRY, observer_class
 from ..observers.base import Param, resolve
+from ..plant import expand as expand_plant
 from .params_file import flatten, load_params_file, load_params_files  # noqa: F401  (re-exported)
 
 FIELDS = ("position", "velocity", "effort")
@@ -108,15 +109,17 @@ def split(flat: Mapping[str, Any]) -> tuple[dict[str, Any], type, dict[str, Any]
     """(typed settings, observer class, typed observer config) from flat parameters.
 
     Sections of other registered observers are ignored (one file may carry
-    several); any other unknown name is refused.
+    several); any other unknown name is refused.  A plant block (``plant.*``) is
+    expanded first into the chosen observer's explicit parameters (fto_ros.plant).
     """
+    flat, adapt = expand_plant(flat)
     known = {p.name for p in SETTINGS}
     own = {k: v for k, v in flat.items() if k in known}
     type_name = own.get("observer.type")
     if type_name is None:
         raise ConfigError("observer.type", "missing: say which observer to run (one of "
                           + ", ".join(sorted(REGISTRY)) + ")")
-    cls = observer_class(type_name)
+    cls = adapt(observer_class(type_name))
     section = cls.TYPE + "."
     obs_values = {k[len(section):]: v for k, v in flat.items() if k.startswith(section)}
     for k in flat:
