@@ -40,7 +40,7 @@ def expand(flat: Mapping[str, Any]) -> tuple[dict[str, Any], Callable[[type], ty
     if not given(flat):
         return out, _same_class
     type_name = flat.get("observer.type")
-    if type_name not in REGISTRY:
+    if not isinstance(type_name, str) or type_name not in REGISTRY:
         return out, _same_class            # split() refuses a missing or unknown type
     plant = resolve_plant(flat)
     section = {k[len(type_name) + 1:]: v for k, v in flat.items()
