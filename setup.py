@@ -49,6 +49,7 @@ setup(
             'fto-simulate = fto_ros.cli.simulate:main',
             'fto-play = fto_ros.nodes.player:main',
             'fto-report = fto_ros.cli.report:main',
+            'fto-sweep = fto_ros.sweep.cli:main',
         ],
     },
 )

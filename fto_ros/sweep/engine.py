@@ -1,0 +1,281 @@
+"""Where the runs of a sweep (or of the main job) execute: in this process, in local worker
+processes, or on an existing Dask distributed cluster.  One interface for the three:
+
+    with Engine(workers=4) as engine:                 # or Engine(scheduler="tcp://host:8786")
+        results = engine.map(fn, [(a1, b1), (a2, b2)], costs=[2.0, 1.0], on_done=print)
+
+``fn`` must be a module-level function of an installed package (it is sent by reference)
+and should return its failures as values; ``map`` returns the results in the order of the
+argument tuples.  A task that does not come back (its worker process died, the cluster lost
+it, the worker could not import it) is a :class:`Lost` in its place, never the end of the
+map.  Tasks start in the order of decreasing ``costs`` (longest first: the last task to
+finish is then a short one, which keeps every worker busy to the end).
+
+- ``workers == 1``: in this process, one task after the other (no pool, no pickling).
+- ``workers > 1``: a :class:`concurrent.futures.ProcessPoolExecutor` of that many processes
+  (forkserver start method where the platform has it, with the replay code preloaded, so a
+  new worker starts in milliseconds).  Nothing listens on the network.  A worker process
+  that dies breaks the pool: the tasks that were running then are charged, the others are
+  resubmitted to a new pool, and a task charged twice becomes a :class:`Lost`.
+- ``scheduler``: a :class:`distributed.Client` connected to the scheduler at that address;
+  each task is one ``Client.submit`` (Dask schedules, retries on worker loss and moves the
+  data).  Before anything is submitted the engine checks that the cluster has workers, that
+  they can import ``fto_ros``, and (:meth:`Engine.missing_paths`) that they see the files.
+"""
+from __future__ import annotations
+
+import asyncio
+import multiprocessing
+import os
+import socket
+from collections import Counter
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
+
+#: seconds to wait for the scheduler to answer, and for a cluster to have a worker
+CONNECT_TIMEOUT_S = 30.0
+#: a task whose local worker process died this many times is given up (a Lost)
+MAX_CRASHES = 2
+#: modules a forkserver imports once, before it forks the local workers
+PRELOAD = ["fto_ros.replay.replay", "fto_ros.sweep.tasks"]
+
+
+class EngineError(Exception):
+    """The engine cannot run anything (scheduler unreachable, no worker, workers without
+    fto_ros, files the workers cannot see).  One line."""
+
+
+@dataclass(frozen=True)
+class Lost:
+    """In place of the result of a task that did not come back."""
+
+    message: str
+
+
+def one_line(err: BaseException | str) -> str:
+    """An error message on one line."""
+    return " ".join(str(err).split())
+
+
+def _lost(err: BaseException) -> Lost:
+    return Lost(f"{type(err).__name__}: {one_line(err)}")
+
+
+def default_workers() -> int:
+    """One worker per core this process may run on (its CPU affinity, else the machine's
+    core count)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+def where() -> str:
+    """``host:pid`` of the process running a task (the 'worker' of a result)."""
+    return f"{socket.gethostname()}:{os.getpid()}"
+
+
+# ----------------------------------------------------------------- local worker processes
+_started = None  # in a local worker: the queue that hears of every task it starts
+
+
+def _init_local_worker(queue) -> None:
+    global _started
+    _started = queue
+
+
+def _tracked(fn: Callable, index: int, args: tuple):
+    """Run ``fn(*args)`` in a local worker, first telling the parent that ``index`` started
+    (so that a crash charges the task that was running, not the ones still queued)."""
+    _started.put(index)
+    return fn(*args)
+
+
+def _context():
+    methods = multiprocessing.get_all_start_methods()
+    if "forkserver" in methods:
+        ctx = multiprocessing.get_context("forkserver")
+        ctx.set_forkserver_preload(PRELOAD)
+        return ctx
+    return multiprocessing.get_context("spawn")
+
+
+def _probe(paths: Sequence[str]) -> dict[str, Any]:
+    """Run on every Dask worker before a sweep: what it is and which paths it cannot see."""
+    import fto_ros
+    return {"where": where(), "fto_ros": os.path.dirname(fto_ros.__file__),
+            "missing": [p for p in paths if not os.path.exists(p)]}
+
+
+class Engine:
+    """Runs tasks in this process, in local worker processes or on a Dask cluster."""
+
+    def __init__(self, workers: int | None = None, scheduler: str | None = None):
+        if workers is not None and workers < 1:
+            raise ValueError(f"workers must be >= 1, got {workers}")
+        self.scheduler = scheduler
+        self.workers = workers or default_workers()
+        self.client = None
+        self._probed: dict[str, dict] = {}
+
+    # -- connection --------------------------------------------------------------------
+    def __enter__(self) -> "Engine":
+        if self.scheduler is not None:
+            self._connect()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self.client is not None:
+            client, self.client = self.client, None
+            try:
+                client.close(timeout=10)
+            except Exception:  # noqa: BLE001  closing a lost connection: nothing left to do
+                pass
+
+    def _connect(self) -> None:
+        from distributed import Client
+        address = self.scheduler
+        try:
+            self.client = Client(address, timeout=CONNECT_TIMEOUT_S, set_as_default=False)
+        except (OSError, TimeoutError, ValueError) as err:
+            raise EngineError(f"cannot connect to the Dask scheduler at {address}: "
+                              f"{one_line(err)}") from None
+        try:
+            self.client.wait_for_workers(1, timeout=CONNECT_TIMEOUT_S)
+        except (OSError, TimeoutError) as err:
+            self.close()
+            raise EngineError(f"the Dask cluster at {address} has no worker (waited "
+                              f"{CONNECT_TIMEOUT_S:g} s): {one_line(err) or 'timeout'}") from None
+        answers = self.client.run(_probe, [], on_error="return")
+        for worker, answer in answers.items():
+            if isinstance(answer, BaseException):
+                self.close()
+                raise EngineError(f"Dask worker {worker} cannot run fto_ros ({_lost(answer).message}):"
+                                  " install the package (same version) on every worker")
+        self._probed = answers
+
+    @property
+    def description(self) -> str:
+        if self.client is not None:
+            return f"Dask cluster at {self.scheduler} ({len(self._probed)} worker(s))"
+        if self.workers == 1:
+            return "this process (1 worker)"
+        return f"{self.workers} local worker processes"
+
+    # -- data --------------------------------------------------------------------------
+    def missing_paths(self, paths: Sequence[str]) -> dict[str, list[str]]:
+        """``{worker: [paths it cannot see]}`` for the workers that miss some (local
+        workers see what this process sees)."""
+        if self.client is None:
+            missing = [p for p in paths if not os.path.exists(p)]
+            return {where(): missing} if missing else {}
+        answers = self.client.run(_probe, list(paths), on_error="return")
+        out = {}
+        for worker, answer in answers.items():
+            missing = list(paths) if isinstance(answer, BaseException) else answer["missing"]
+            if missing:
+                out[worker] = missing
+        return out
+
+    def share(self, obj: Any) -> Any:
+        """A handle to pass ``obj`` to many tasks: on a cluster it is sent to the workers
+        once (``Client.scatter``) instead of with every task; locally it is ``obj``."""
+        if self.client is None:
+            return obj
+        return self.client.scatter(obj, hash=False)
+
+    # -- running -----------------------------------------------------------------------
+    def map(self, fn: Callable, arglists: Sequence[tuple], *, costs: Sequence[float] | None = None,
+            on_done: Callable[[int, Any], None] | None = None) -> list:
+        """``[fn(*args) for args in arglists]``, run as the engine runs things; a task that
+        does not come back is a :class:`Lost`.  ``on_done(index, result)`` as each ends."""
+        n = len(arglists)
+        order = sorted(range(n), key=lambda i: -costs[i]) if costs is not None else list(range(n))
+        done = on_done or (lambda i, r: None)
+        if self.client is not None:
+            return self._map_dask(fn, arglists, order, done)
+        if self.workers == 1 or n <= 1:
+            return self._map_here(fn, arglists, order, done)
+        return self._map_pool(fn, arglists, order, done)
+
+    @staticmethod
+    def _map_here(fn, arglists, order, done) -> list:
+        results: list = [None] * len(arglists)
+        for i in order:
+            try:
+                results[i] = fn(*arglists[i])
+            except Exception as err:  # noqa: BLE001  one task's failure is its result
+                results[i] = _lost(err)
+            done(i, results[i])
+        return results
+
+    def _map_pool(self, fn, arglists, order, done) -> list:
+        results: dict[int, Any] = {}
+        crashes: Counter[int] = Counter()
+        ctx = _context()
+        todo = list(order)
+        while todo:
+            queue = ctx.SimpleQueue()
+            started: set[int] = set()
+            pool = ProcessPoolExecutor(min(self.workers, len(todo)), mp_context=ctx,
+                                       initializer=_init_local_worker, initargs=(queue,))
+            try:
+                futures = {pool.submit(_tracked, fn, i, arglists[i]): i for i in todo}
+                pending, broken = set(futures), False
+                while pending and not broken:
+                    finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+                    for f in finished:
+                        err = f.exception()
+                        if isinstance(err, BrokenProcessPool):
+                            broken = True
+                            continue
+                        i = futures[f]
+                        results[i] = f.result() if err is None else _lost(err)
+                        done(i, results[i])
+                    while not queue.empty():
+                        started.add(queue.get())
+                for f in pending:  # ended well while the pool broke
+                    if f.done() and f.exception() is None:
+                        results[futures[f]] = f.result()
+                        done(futures[f], results[futures[f]])
+            finally:
+                pool.shutdown(wait=True, cancel_futures=True)
+            while not queue.empty():
+                started.add(queue.get())
+            todo = [i for i in todo if i not in results]
+            # the tasks that were running when a worker died; all of them if none said so
+            suspects = [i for i in todo if i in started] or todo
+            for i in suspects:
+                crashes[i] += 1
+                if crashes[i] >= MAX_CRASHES:
+                    results[i] = Lost(f"its worker process died while running it ({MAX_CRASHES} "
+                                      "times; out of memory? run it alone with --workers 1)")
+                    done(i, results[i])
+            todo = [i for i in todo if i not in results]
+        return [results[i] for i in range(len(arglists))]
+
+    def _map_dask(self, fn, arglists, order, done) -> list:
+        from distributed import as_completed
+        n = len(arglists)
+        futures = {self.client.submit(fn, *arglists[i], pure=False, priority=n - rank): i
+                   for rank, i in enumerate(order)}
+        results: list = [None] * n
+        try:
+            for f in as_completed(futures):
+                i = futures[f]
+                try:
+                    results[i] = f.result()
+                except (Exception, asyncio.CancelledError) as err:  # noqa: BLE001
+                    results[i] = Lost(f"the cluster could not run it: {_lost(err).message}")
+                f.release()
+                done(i, results[i])
+        finally:
+            for f in futures:
+                if not f.done():
+                    f.cancel()
+        return results
