@@ -38,16 +38,6 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{PROG}: error: {' '.join(message.split())} (see {PROG} --help)\n")
 
 
-def _workers(text: str) -> int:
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {n}")
-    return n
-
-
 def _scheduler(text: str) -> str:
     if not re.fullmatch(r"[a-z][a-z0-9+.-]*://\S+", text):
         raise argparse.ArgumentTypeError(f"expected a Dask scheduler address such as "
@@ -56,7 +46,7 @@ def _scheduler(text: str) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from ..cli.args import non_negative_float, positive_float
+    from ..cli.args import non_negative_float, positive_float, positive_int
     from ..replay import DEFAULT_NODE_NAME, DEFAULT_TOLERANCE
     p = _Parser(
         prog=PROG,
@@ -81,7 +71,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "the same bags without the --set values, for comparison; repeatable "
                         "(default: none)")
     where = p.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=_workers, default=None, metavar="N",
+    where.add_argument("--workers", type=positive_int, default=None, metavar="N",
                        help="local worker processes (default: one per core; 1 runs everything "
                             "in this process)")
     where.add_argument("--scheduler", type=_scheduler, default=None, metavar="ADDRESS",
@@ -115,13 +105,6 @@ def _fail(code: int, message: str) -> int:
     return code
 
 
-def _size(path: Path) -> int:
-    """Bytes of a bag (what a run costs, roughly)."""
-    if path.is_file():
-        return path.stat().st_size
-    return sum(f.stat().st_size for f in path.rglob("*") if f.is_file())
-
-
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
@@ -141,7 +124,7 @@ def _main(args) -> int:
     from ..runner.params_file import load_params_files
     from . import grid, plots, results
     from .engine import Engine, EngineError, Lost
-    from .tasks import RUNTIME, Outcome, Run, execute, read_files
+    from .tasks import RUNTIME, Outcome, Run, bag_size, execute, read_files
 
     # ---- everything that can be refused before a single run (exit 2, then 1)
     baselines = [tuple(f.strip() for f in b.split(",")) for b in args.baseline]
@@ -160,10 +143,6 @@ def _main(args) -> int:
     for bag in args.bag:
         if not Path(bag).exists():
             return _fail(1, f"bag {bag} does not exist")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        return _fail(1, f"cannot create {out}: {err}")
 
     # ---- the runs: the grid on every bag, then the baselines on every bag
     settings = grid.expand(axes)
@@ -172,12 +151,12 @@ def _main(args) -> int:
     runs = []
     for i, (bag, params, setting) in enumerate(plan):
         keep = out.resolve() / "runs" / f"{i:04d}_{Path(bag).name}" if args.keep_runs else None
-        runs.append(Run(i, results.BASELINE if setting is None else results.SWEEP, bag, params,
+        runs.append(Run(i, bag, params,
                         str(Path(bag).resolve()), tuple(str(Path(f).resolve()) for f in params),
                         {} if setting is None else dict(setting.overrides),
                         None if keep is None else str(keep), args.node_name, args.tolerance,
                         args.after))
-    costs = {bag: _size(Path(bag)) for bag in args.bag}
+    costs = {bag: bag_size(bag) for bag in args.bag}
 
     done = [0]
 
@@ -206,7 +185,12 @@ def _main(args) -> int:
                 sent = {f: engine.share(read_files(f)) for f in files}
                 arglists = [(r, sent[r.bag_path], tuple(sent[p] for p in r.params_paths))
                             for r in runs]
-            print(f"{PROG}: {len(runs)} run(s) on {engine.description}", file=sys.stderr)
+            try:
+                out.mkdir(parents=True, exist_ok=True)
+            except OSError as err:
+                return _fail(1, f"cannot create {out}: {err}")
+            if not args.quiet:
+                print(f"{PROG}: {len(runs)} run(s) on {engine.description}", file=sys.stderr)
             outcomes = engine.map(execute, arglists, costs=[costs[r.bag] for r in runs],
                                   on_done=progress)
             description = engine.description

@@ -15,8 +15,9 @@ finish is then a short one, which keeps every worker busy to the end).
 - ``workers > 1``: a :class:`concurrent.futures.ProcessPoolExecutor` of that many processes
   (forkserver start method where the platform has it, with the replay code preloaded, so a
   new worker starts in milliseconds).  Nothing listens on the network.  A worker process
-  that dies breaks the pool: the tasks that were running then are charged, the others are
-  resubmitted to a new pool, and a task charged twice becomes a :class:`Lost`.
+  that dies breaks the pool: the tasks that were running then are rerun one at a time, each
+  alone in a new process (the one that dies again is a :class:`Lost`), and the others go to
+  a new pool.
 - ``scheduler``: a :class:`distributed.Client` connected to the scheduler at that address;
   each task is one ``Client.submit`` (Dask schedules, retries on worker loss and moves the
   data).  Before anything is submitted the engine checks that the cluster has workers, that
@@ -28,7 +29,6 @@ import asyncio
 import multiprocessing
 import os
 import socket
-from collections import Counter
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
@@ -36,8 +36,6 @@ from typing import Any, Callable, Sequence
 
 #: seconds to wait for the scheduler to answer, and for a cluster to have a worker
 CONNECT_TIMEOUT_S = 30.0
-#: a task whose local worker process died this many times is given up (a Lost)
-MAX_CRASHES = 2
 #: modules a forkserver imports once, before it forks the local workers
 PRELOAD = ["fto_ros.replay.replay", "fto_ros.sweep.tasks"]
 
@@ -183,11 +181,12 @@ class Engine:
         return out
 
     def share(self, obj: Any) -> Any:
-        """A handle to pass ``obj`` to many tasks: on a cluster it is sent to the workers
-        once (``Client.scatter``) instead of with every task; locally it is ``obj``."""
+        """A handle to pass ``obj`` to many tasks: on a cluster it is sent once to every
+        worker (``Client.scatter(broadcast=True)``: the tasks then spread over all workers
+        instead of queueing where the data is) instead of with every task; locally ``obj``."""
         if self.client is None:
             return obj
-        return self.client.scatter(obj, hash=False)
+        return self.client.scatter([obj], broadcast=True, hash=False)[0]
 
     # -- running -----------------------------------------------------------------------
     def map(self, fn: Callable, arglists: Sequence[tuple], *, costs: Sequence[float] | None = None,
@@ -216,48 +215,52 @@ class Engine:
 
     def _map_pool(self, fn, arglists, order, done) -> list:
         results: dict[int, Any] = {}
-        crashes: Counter[int] = Counter()
+
+        def finish(i: int, result: Any) -> None:
+            results[i] = result
+            done(i, result)
+
         ctx = _context()
         todo = list(order)
         while todo:
-            queue = ctx.SimpleQueue()
-            started: set[int] = set()
-            pool = ProcessPoolExecutor(min(self.workers, len(todo)), mp_context=ctx,
-                                       initializer=_init_local_worker, initargs=(queue,))
-            try:
-                futures = {pool.submit(_tracked, fn, i, arglists[i]): i for i in todo}
-                pending, broken = set(futures), False
-                while pending and not broken:
-                    finished, pending = wait(pending, return_when=FIRST_COMPLETED)
-                    for f in finished:
-                        err = f.exception()
-                        if isinstance(err, BrokenProcessPool):
-                            broken = True
-                            continue
-                        i = futures[f]
-                        results[i] = f.result() if err is None else _lost(err)
-                        done(i, results[i])
-                    while not queue.empty():
-                        started.add(queue.get())
-                for f in pending:  # ended well while the pool broke
-                    if f.done() and f.exception() is None:
-                        results[futures[f]] = f.result()
-                        done(futures[f], results[futures[f]])
-            finally:
-                pool.shutdown(wait=True, cancel_futures=True)
-            while not queue.empty():
-                started.add(queue.get())
-            todo = [i for i in todo if i not in results]
-            # the tasks that were running when a worker died; all of them if none said so
-            suspects = [i for i in todo if i in started] or todo
-            for i in suspects:
-                crashes[i] += 1
-                if crashes[i] >= MAX_CRASHES:
-                    results[i] = Lost(f"its worker process died while running it ({MAX_CRASHES} "
-                                      "times; out of memory? run it alone with --workers 1)")
-                    done(i, results[i])
-            todo = [i for i in todo if i not in results]
+            started = self._round(ctx, fn, arglists, todo, self.workers, finish)
+            left = [i for i in todo if i not in results]
+            # a worker died: rerun the tasks that were running then, each alone, so that
+            # only the one that kills its worker is lost (all of them if none said so)
+            for i in [i for i in left if i in started] or left:
+                self._round(ctx, fn, arglists, [i], 1, finish)
+                if i not in results:
+                    finish(i, Lost("its worker process died while running it (out of memory? "
+                                   "a crash in a library?)"))
+            todo = [i for i in left if i not in results]
         return [results[i] for i in range(len(arglists))]
+
+    @staticmethod
+    def _round(ctx, fn, arglists, todo, workers, finish) -> set[int]:
+        """Run ``todo`` on a new pool of ``workers`` processes until all are done or a worker
+        dies (the pool is then broken); ``finish`` each result.  The indices that started."""
+        queue = ctx.SimpleQueue()
+        started: set[int] = set()
+        pool = ProcessPoolExecutor(min(workers, len(todo)), mp_context=ctx,
+                                   initializer=_init_local_worker, initargs=(queue,))
+        try:
+            futures = {pool.submit(_tracked, fn, i, arglists[i]): i for i in todo}
+            pending, broken = set(futures), False
+            while pending and not broken:
+                finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+                for f in finished:
+                    err = f.exception()
+                    if isinstance(err, BrokenProcessPool):
+                        broken = True
+                    else:
+                        finish(futures[f], f.result() if err is None else _lost(err))
+                while not queue.empty():
+                    started.add(queue.get())
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
+        while not queue.empty():
+            started.add(queue.get())
+        return started
 
     def _map_dask(self, fn, arglists, order, done) -> list:
         from distributed import as_completed
@@ -266,7 +269,7 @@ class Engine:
                    for rank, i in enumerate(order)}
         results: list = [None] * n
         try:
-            for f in as_completed(futures):
+            for f in as_completed(futures, loop=self.client.loop):
                 i = futures[f]
                 try:
                     results[i] = f.result()

@@ -1,5 +1,5 @@
-"""One run of a sweep, as a worker executes it: a replay through the harness's code path
-(:func:`fto_ros.replay.replay`, no plot, no progress bar) whose failure is a value.
+"""One run of a sweep (or of the main job), as a worker executes it: a replay through the
+harness's code path (:func:`fto_ros.replay.replay`) whose failure is a value.
 
 A :class:`Run` names its bag and params files by absolute path (*shared* data: the worker
 reads the same path, on this machine or on storage every worker mounts).  For a cluster
@@ -31,7 +31,6 @@ class Run:
     them), ``bag_path`` and ``params_paths`` absolute (what the worker opens)."""
 
     index: int
-    role: str                         # "sweep" or "baseline"
     bag: str
     params: tuple[str, ...]
     bag_path: str
@@ -42,6 +41,8 @@ class Run:
     node_name: str | None = None
     tolerance: float | None = None
     after: float | None = None
+    plot: bool = False                # write replay.png beside metrics.json
+    progress: bool = False            # a progress bar on a terminal (in this process only)
 
 
 @dataclass
@@ -87,8 +88,8 @@ def execute(run: Run, bag_files: "Files | None" = None,
         else:
             out = run.out
         outcome.metrics = replay(
-            bag, params, out, node_name=run.node_name, overwrite=True, progress=False,
-            after=run.after, plot=False, overrides=run.overrides,
+            bag, params, out, node_name=run.node_name, overwrite=True, progress=run.progress,
+            after=run.after, plot=run.plot, overrides=run.overrides,
             tolerance=DEFAULT_TOLERANCE if run.tolerance is None else run.tolerance)
     except Exception as err:  # noqa: BLE001  a failed run is a row, not the end of the sweep
         outcome.kind, outcome.error = classify(err)
@@ -97,6 +98,14 @@ def execute(run: Run, bag_files: "Files | None" = None,
             shutil.rmtree(scratch, ignore_errors=True)
     outcome.wall_s = time.perf_counter() - t0
     return outcome
+
+
+def bag_size(path: str | Path) -> int:
+    """Bytes of a bag: what replaying it costs, roughly (the engine starts long runs first)."""
+    p = Path(path)
+    if p.is_file():
+        return p.stat().st_size
+    return sum(f.stat().st_size for f in p.rglob("*") if f.is_file()) if p.is_dir() else 0
 
 
 # --------------------------------------------------------------------- sending the data
