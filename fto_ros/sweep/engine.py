@@ -86,7 +86,7 @@ def _init_local_worker(queue) -> None:
 
 def _tracked(fn: Callable, index: int, args: tuple):
     """Run ``fn(*args)`` in a local worker, first telling the parent that ``index`` started
-    (so that a crash charges the task that was running, not the ones still queued)."""
+    (after a worker died, the tasks that were running can then be told from the queued)."""
     _started.put(index)
     return fn(*args)
 
@@ -100,11 +100,10 @@ def _context():
     return multiprocessing.get_context("spawn")
 
 
-def _probe(paths: Sequence[str]) -> dict[str, Any]:
-    """Run on every Dask worker before a sweep: what it is and which paths it cannot see."""
-    import fto_ros
-    return {"where": where(), "fto_ros": os.path.dirname(fto_ros.__file__),
-            "missing": [p for p in paths if not os.path.exists(p)]}
+def _missing(paths: Sequence[str]) -> list[str]:
+    """The paths this process cannot see (run on every Dask worker: a worker without fto_ros
+    cannot even load this function)."""
+    return [p for p in paths if not os.path.exists(p)]
 
 
 class Engine:
@@ -116,7 +115,7 @@ class Engine:
         self.scheduler = scheduler
         self.workers = workers or default_workers()
         self.client = None
-        self._probed: dict[str, dict] = {}
+        self._n_cluster_workers = 0
 
     # -- connection --------------------------------------------------------------------
     def __enter__(self) -> "Engine":
@@ -149,18 +148,19 @@ class Engine:
             self.close()
             raise EngineError(f"the Dask cluster at {address} has no worker (waited "
                               f"{CONNECT_TIMEOUT_S:g} s): {one_line(err) or 'timeout'}") from None
-        answers = self.client.run(_probe, [], on_error="return")
+        answers = self.client.run(_missing, [], on_error="return")
         for worker, answer in answers.items():
             if isinstance(answer, BaseException):
                 self.close()
-                raise EngineError(f"Dask worker {worker} cannot run fto_ros ({_lost(answer).message}):"
-                                  " install the package (same version) on every worker")
-        self._probed = answers
+                raise EngineError(f"Dask worker {worker} cannot run fto_ros "
+                                  f"({_lost(answer).message}): install the package (same "
+                                  "version) on every worker")
+        self._n_cluster_workers = len(answers)
 
     @property
     def description(self) -> str:
         if self.client is not None:
-            return f"Dask cluster at {self.scheduler} ({len(self._probed)} worker(s))"
+            return f"Dask cluster at {self.scheduler} ({self._n_cluster_workers} worker(s))"
         if self.workers == 1:
             return "this process (1 worker)"
         return f"{self.workers} local worker processes"
@@ -170,15 +170,11 @@ class Engine:
         """``{worker: [paths it cannot see]}`` for the workers that miss some (local
         workers see what this process sees)."""
         if self.client is None:
-            missing = [p for p in paths if not os.path.exists(p)]
-            return {where(): missing} if missing else {}
-        answers = self.client.run(_probe, list(paths), on_error="return")
-        out = {}
-        for worker, answer in answers.items():
-            missing = list(paths) if isinstance(answer, BaseException) else answer["missing"]
-            if missing:
-                out[worker] = missing
-        return out
+            answers = {where(): _missing(paths)}
+        else:
+            answers = self.client.run(_missing, list(paths), on_error="return")
+        return {worker: list(paths) if isinstance(missing, BaseException) else missing
+                for worker, missing in answers.items() if missing}
 
     def share(self, obj: Any) -> Any:
         """A handle to pass ``obj`` to many tasks: on a cluster it is sent once to every
