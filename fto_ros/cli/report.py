@@ -30,6 +30,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ..sweep import engine as _engine  # noqa: F401  first: one BLAS thread per process
+
 PROG = "fto-report"
 SYSTEM = "dc_motor"
 #: bags that must be there; every other BAGS_DIR/dc_motor_* is used when present

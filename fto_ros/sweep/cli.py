@@ -28,6 +28,8 @@ import sys
 import time
 from pathlib import Path
 
+from . import engine as _engine  # noqa: F401  first: one BLAS thread per process (see there)
+
 PROG = "fto-sweep"
 
 
