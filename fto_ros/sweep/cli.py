@@ -129,7 +129,7 @@ def _main(args) -> int:
     from .tasks import RUNTIME, Outcome, Run, bag_size, execute, read_files
 
     # ---- everything that can be refused before a single run (exit 2, then 1)
-    baselines = [tuple(f.strip() for f in b.split(",")) for b in args.baseline]
+    baselines = [tuple(f.strip() for f in b.split(",") if f.strip()) for b in args.baseline]
     try:
         axes = grid.parse_axes(args.set)
         flat = load_params_files(args.params, args.node_name)
@@ -150,14 +150,13 @@ def _main(args) -> int:
     settings = grid.expand(axes)
     plan = [(bag, tuple(args.params), s) for bag in args.bag for s in settings]
     plan += [(bag, files, None) for bag in args.bag for files in baselines]
-    runs = []
-    for i, (bag, params, setting) in enumerate(plan):
-        keep = out.resolve() / "runs" / f"{i:04d}_{Path(bag).name}" if args.keep_runs else None
-        runs.append(Run(i, bag, params,
-                        str(Path(bag).resolve()), tuple(str(Path(f).resolve()) for f in params),
-                        {} if setting is None else dict(setting.overrides),
-                        None if keep is None else str(keep), args.node_name, args.tolerance,
-                        args.after))
+    runs = [Run(i, bag, params, bag_path=str(Path(bag).resolve()),
+                params_paths=tuple(str(Path(f).resolve()) for f in params),
+                overrides={} if setting is None else dict(setting.overrides),
+                out=str(out.resolve() / "runs" / f"{i:04d}_{Path(bag).name}")
+                if args.keep_runs else None,
+                node_name=args.node_name, tolerance=args.tolerance, after=args.after)
+            for i, (bag, params, setting) in enumerate(plan)]
     costs = {bag: bag_size(bag) for bag in args.bag}
 
     done = [0]
@@ -167,7 +166,7 @@ def _main(args) -> int:
         if args.quiet:
             return
         run, setting = runs[i], plan[i][2]
-        what = setting.label() if setting else f"baseline {','.join(run.params)}"
+        what = f"baseline {','.join(run.params)}" if setting is None else setting.label()
         state = getattr(outcome, "error", None) or getattr(outcome, "message", None)
         print(f"{PROG}: [{done[0]}/{len(runs)}] {run.bag}, {what}: "
               + (f"FAILED: {state}" if state else "ok"), file=sys.stderr)

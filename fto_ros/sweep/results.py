@@ -90,18 +90,12 @@ def _judged(rows: Iterable[dict], role: str = SWEEP) -> list[dict]:
     return [r for r in rows if r["role"] == role and r["mean_rms_err"] is not None]
 
 
-def _key(score: float, conv: float, order: int) -> tuple:
-    return (score, conv, order)
-
-
 def best_per_bag(rows: Sequence[dict]) -> dict[str, dict]:
     """``{bag: best row}`` over the sweep rows with an error score."""
     best: dict[str, dict] = {}
-    for r in _judged(rows):
-        b = best.get(r["bag"])
-        if b is None or _key(r["mean_rms_err"], r["convergence_time_s"], r["run"]) < \
-                _key(b["mean_rms_err"], b["convergence_time_s"], b["run"]):
-            best[r["bag"]] = r
+    for r in sorted(_judged(rows),
+                    key=lambda r: (r["mean_rms_err"], r["convergence_time_s"], r["run"])):
+        best.setdefault(r["bag"], r)
     return best
 
 
@@ -124,9 +118,8 @@ def aggregate(rows: Sequence[dict], role: str = SWEEP) -> list[dict]:
 
 def best_overall(rows: Sequence[dict]) -> dict | None:
     """The best setting over all bags (see the module doc), or None."""
-    agg = aggregate(rows)
-    return min(agg, key=lambda a: _key(a["mean_rms_err"], a["convergence_time_s"], a["order"]),
-               default=None)
+    return min(aggregate(rows), default=None,
+               key=lambda a: (a["mean_rms_err"], a["convergence_time_s"], a["order"]))
 
 
 def pareto_front(points: Sequence[tuple[float, float]]) -> list[int]:
