@@ -265,12 +265,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
-    try:
-        return _main(args)
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted", file=sys.stderr)
-        return 130
+    from .args import guarded
+    return guarded(PROG, _main, build_parser().parse_args(argv))
 
 
 def _said(p: Pair) -> None:

@@ -11,7 +11,7 @@ import argparse
 import os
 import sys
 
-from ..cli.args import non_negative_float, positive_float
+from ..cli.args import non_negative_float, one_line, positive_float
 
 PROG = "fto-replay"
 
@@ -47,11 +47,6 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"error bound (state units) defining the measured convergence time "
                         f"(default {DEFAULT_TOLERANCE:g})")
     return p
-
-
-def one_line(err: BaseException | str) -> str:
-    """An error message on one line (YAML and other parsers give several)."""
-    return " ".join(str(err).split())
 
 
 def _fmt(v, spec=".3g") -> str:

@@ -22,7 +22,6 @@ cluster), 130 interrupted.  One ``fto-sweep: error: ...`` line, never a tracebac
 from __future__ import annotations
 
 import argparse
-import os
 import re
 import sys
 import time
@@ -102,23 +101,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _fail(code: int, message: str) -> int:
-    from .engine import one_line
+    from ..cli.args import one_line
     print(f"{PROG}: error: {one_line(message)}", file=sys.stderr)
     return code
 
 
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
-    try:
-        return _main(args)
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted", file=sys.stderr)
-        return 130
-    except Exception as err:  # never a traceback for the user; FTO_DEBUG=1 shows it
-        if os.environ.get("FTO_DEBUG"):
-            raise
-        return _fail(1, f"unexpected {type(err).__name__}: {err} (FTO_DEBUG=1 shows the "
-                        "traceback)")
+    from ..cli.args import guarded
+    return guarded(PROG, _main, build_parser().parse_args(argv))
 
 
 def _main(args) -> int:

@@ -40,6 +40,8 @@ from typing import Any, Callable, Sequence
 # loads: the command lines import this module first, and worker processes inherit it.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
+from ..cli.args import one_line  # noqa: E402
+
 #: seconds to wait for the scheduler to answer, and for a cluster to have a worker
 CONNECT_TIMEOUT_S = 30.0
 #: modules a forkserver imports once, before it forks the local workers
@@ -56,11 +58,6 @@ class Lost:
     """In place of the result of a task that did not come back."""
 
     message: str
-
-
-def one_line(err: BaseException | str) -> str:
-    """An error message on one line."""
-    return " ".join(str(err).split())
 
 
 def _lost(err: BaseException) -> Lost:

@@ -19,7 +19,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .engine import one_line, where
+from ..cli.args import one_line
+from .engine import where
 
 #: outcome kinds of a failed run: a parameter refused, a bad bag, anything else
 CONFIG, BAG, RUNTIME = "config", "bag", "runtime"
