@@ -17,11 +17,15 @@ Measured in one run, on the same machine, each configuration as a user runs it (
 With ``--repeat R`` every configuration runs R times (in turn, so that a change of load
 hits all of them alike) and the best time counts.  The machine's load average is printed
 before and after: on a shared machine the ratios are only as good as the load was steady.
-Prints markdown tables (ratios: time on 1 worker / time on 2, Dask time / pool time).
+Prints markdown tables (ratios: time on 1 worker / time on 2, Dask time / pool time), and
+for the sweeps the CPU time their runs took in the workers (``cpu_s`` of results.csv) over
+the wall time: the cores the sweep actually got, which tells a parallel overhead (the CPU
+grows) from a busy machine (the cores got fall short of the workers).
 """
 from __future__ import annotations
 
 import argparse
+import csv
 import os
 import subprocess
 import sys
@@ -52,6 +56,12 @@ def timed(cmd: list[str], cwd: Path = ROOT) -> float:
     return wall
 
 
+def runs_cpu(out: Path) -> float:
+    """The CPU time the sweep's runs took in their worker processes (results.csv's cpu_s)."""
+    with open(out / "results.csv", newline="") as f:
+        return sum(float(r["cpu_s"]) for r in csv.DictReader(f))
+
+
 def main_job(workers: int, tmp: Path) -> list[str]:
     return [str(BIN / "fto-report"), "--no-progress", "--workers", str(workers),
             "--out", str(tmp / f"report{workers}")]
@@ -76,6 +86,7 @@ def main(argv=None) -> int:
     configs = ["main 1", "main 2"] if not args.skip_main_job else []
     configs += ["sweep 1", "sweep 2", "dask 2"]
     t = {name: float("inf") for name in configs}   # best wall time per configuration
+    cpu = {}                                         # the sweeps' runs' CPU time in that run
     startup = float("inf")
     with tempfile.TemporaryDirectory(prefix="bench-sweep-") as d:
         tmp = Path(d)
@@ -88,12 +99,15 @@ def main(argv=None) -> int:
                     with LocalCluster(host="127.0.0.1", n_workers=2, threads_per_worker=1,
                                       processes=True, dashboard_address=None) as cluster:
                         startup = min(startup, time.perf_counter() - t0)
-                        wall = timed(sweep(tmp, "d2", "--scheduler", cluster.scheduler_address))
+                        wall = timed(sweep(tmp, name, "--scheduler", cluster.scheduler_address))
                 else:
                     kind, workers = name.split()
                     wall = timed(main_job(int(workers), tmp) if kind == "main" else
-                                 sweep(tmp, f"s{workers}", "--workers", workers))
-                t[name] = min(t[name], wall)
+                                 sweep(tmp, name, "--workers", workers))
+                if wall < t[name]:
+                    t[name] = wall
+                    if not name.startswith("main"):
+                        cpu[name] = runs_cpu(tmp / name)
     print("| what | 1 worker (s) | 2 workers (s) | speed-up | target |")
     print("|---|---|---|---|---|")
     if not args.skip_main_job:
@@ -102,11 +116,19 @@ def main(argv=None) -> int:
     print(f"| 100-run sweep, local processes | {t['sweep 1']:.1f} | {t['sweep 2']:.1f} | "
           f"{t['sweep 1'] / t['sweep 2']:.2f}x | >= 1.7x |")
     print()
-    print("| 100-run sweep on 2 workers | local process pool (s) | Dask LocalCluster (s) | "
+    print("| 100-run sweep on 2 workers | local process pool | Dask LocalCluster | "
           "Dask / pool | target |")
     print("|---|---|---|---|---|")
-    print(f"| wall time | {t['sweep 2']:.1f} | {t['dask 2']:.1f} | "
+    print(f"| wall time (s) | {t['sweep 2']:.1f} | {t['dask 2']:.1f} | "
           f"{t['dask 2'] / t['sweep 2']:.2f} | <= 1.2 |")
+    print()
+    print("The sweeps' runs' CPU time (results.csv's cpu_s, summed) and the cores they got on "
+          "average (CPU / wall; 1 and 2 on an idle machine):\n")
+    print("| sweep | runs' CPU (s) | wall (s) | cores got |")
+    print("|---|---|---|---|")
+    for name in ("sweep 1", "sweep 2", "dask 2"):
+        print(f"| {name.replace('sweep', 'local').replace('dask', 'Dask')} worker(s) | "
+              f"{cpu[name]:.1f} | {t[name]:.1f} | {cpu[name] / t[name]:.2f} |")
     print(f"\nLocalCluster start-up (not in the Dask time): {startup:.1f} s")
     print(f"after: {load()}")
     return 0

@@ -24,7 +24,7 @@ from .tasks import CONFIG, Outcome, Run
 
 SWEEP, BASELINE = "sweep", "baseline"
 #: columns whose values depend on where and when a run executed, not on its inputs
-TIMING_COLUMNS = ("replay_speed_x_realtime", "wall_s", "worker")
+TIMING_COLUMNS = ("replay_speed_x_realtime", "wall_s", "cpu_s", "worker")
 _HEAD = ("status", "observer", "convergence_time_s", "mean_rms_err")
 _TAIL = ("rejected", "restarts", "guaranteed_time_s", "settle_time_s", *TIMING_COLUMNS,
          "run", "role", "error")
@@ -52,7 +52,8 @@ def make_row(run: Run, setting: Setting | None, outcome: Outcome, axes: Sequence
         rejected=m and m["samples_rejected"], restarts=m and m["restarts"],
         guaranteed_time_s=m and m["guaranteed_time_s"], settle_time_s=m and m["settle_time_s"],
         replay_speed_x_realtime=m and m["replay_speed_x_realtime"],
-        wall_s=round(outcome.wall_s, 4), worker=outcome.worker, run=run.index,
+        wall_s=round(outcome.wall_s, 4), cpu_s=round(outcome.cpu_s, 4), worker=outcome.worker,
+        run=run.index,
         role=BASELINE if setting is None else SWEEP, error=outcome.error)
     # not written: what the summary needs to group and judge rows
     row["_setting"] = setting.label() if setting is not None else ",".join(run.params)

@@ -56,6 +56,7 @@ class Outcome:
     kind: str | None = None
     worker: str = ""
     wall_s: float = 0.0
+    cpu_s: float = 0.0                # CPU time of the worker process for this run
 
 
 def classify(err: BaseException) -> tuple[str, str]:
@@ -76,7 +77,7 @@ def execute(run: Run, bag_files: "Files | None" = None,
             params_files: "tuple[Files, ...] | None" = None) -> Outcome:
     """Replay ``run``; never raises (a failure is the Outcome's error)."""
     from ..replay import DEFAULT_TOLERANCE, replay
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     outcome = Outcome(run.index, worker=where())
     scratch = None
     try:
@@ -98,6 +99,7 @@ def execute(run: Run, bag_files: "Files | None" = None,
         if scratch is not None:
             shutil.rmtree(scratch, ignore_errors=True)
     outcome.wall_s = time.perf_counter() - t0
+    outcome.cpu_s = time.process_time() - c0
     return outcome
 
 
