@@ -145,7 +145,7 @@ def _main(args) -> int:
                 overrides={} if setting is None else dict(setting.overrides),
                 out=str(out.resolve() / "runs" / f"{i:04d}_{Path(bag).name}")
                 if args.keep_runs else None,
-                node_name=args.node_name, tolerance=args.tolerance, after=args.after)
+                node_name=args.node_name, tolerance=args.tolerance, after=args.after, brief=True)
             for i, (bag, params, setting) in enumerate(plan)]
     costs = {bag: bag_size(bag) for bag in args.bag}
 

@@ -44,6 +44,9 @@ class Run:
     after: float | None = None
     plot: bool = False                # write replay.png beside metrics.json
     progress: bool = False            # a progress bar on a terminal (in this process only)
+    #: return only the figures a sweep's row needs (:func:`brief`), not the whole metrics:
+    #: a sweep of 100 000 runs keeps 100 000 of them in memory
+    brief: bool = False
 
 
 @dataclass
@@ -57,6 +60,22 @@ class Outcome:
     worker: str = ""
     wall_s: float = 0.0
     cpu_s: float = 0.0                # CPU time of the worker process for this run
+
+
+#: the metrics a sweep's row reads (the rest stays in the run's metrics.json)
+BRIEF_KEYS = ("observer_type", "convergence_time_s", "samples_rejected", "restarts",
+              "guaranteed_time_s", "settle_time_s", "replay_speed_x_realtime")
+
+
+def brief(metrics: dict[str, Any]) -> dict[str, Any]:
+    """The part of a replay's metrics a sweep's row needs: BRIEF_KEYS, and per state the
+    RMS and largest absolute error after the settle time."""
+    out = {k: metrics[k] for k in BRIEF_KEYS}
+    per_state = (metrics.get("errors") or {}).get("per_state")
+    out["errors"] = None if per_state is None else {"per_state": {
+        name: {k: e[k] for k in ("rms_after_settle", "max_abs_after_settle")}
+        for name, e in per_state.items()}}
+    return out
 
 
 def classify(err: BaseException) -> tuple[str, str]:
@@ -89,10 +108,11 @@ def execute(run: Run, bag_files: "Files | None" = None,
             out = os.path.join(scratch, "out")
         else:
             out = run.out
-        outcome.metrics = replay(
+        metrics = replay(
             bag, params, out, node_name=run.node_name, overwrite=True, progress=run.progress,
             after=run.after, plot=run.plot, overrides=run.overrides,
             tolerance=DEFAULT_TOLERANCE if run.tolerance is None else run.tolerance)
+        outcome.metrics = brief(metrics) if run.brief else metrics
     except Exception as err:  # noqa: BLE001  a failed run is a row, not the end of the sweep
         outcome.kind, outcome.error = classify(err)
     finally:
