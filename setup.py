@@ -52,6 +52,7 @@ setup(
             'fto-play = fto_ros.nodes.player:main',
             'fto-report = fto_ros.cli.report:main',
             'fto-design = fto_ros.cli.design:main',
+            'fto-sweep = fto_ros.sweep.cli:main',
         ],
     },
 )

@@ -30,6 +30,8 @@ FORBIDDEN = {
     "runner": {"rclpy", "rosbags", "mcap", "fto_ros.nodes", "fto_ros.replay", "fto_ros.bag", "fto_ros.cli"},
     "bag": {"rclpy", "fto_ros.nodes", "fto_ros.replay", "fto_ros.cli"},
     "replay": {"rclpy", "fto_ros.nodes"},
+    # sweeps replay offline, in worker processes or on a cluster: no DDS anywhere
+    "sweep": {"rclpy", "fto_ros.nodes"},
 }
 
 

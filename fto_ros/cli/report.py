@@ -1,8 +1,10 @@
 """``fto-report``: replay the DC-motor bags through every observer and compare them.
 
 Each (bag, params file) pair is replayed with :func:`fto_ros.replay.replay`
-into ``OUT/<bag>__<config>/`` (output bag, ``metrics.json``, ``replay.png``);
-then a side-by-side markdown table is printed and written to
+into ``OUT/<bag>__<config>/`` (output bag, ``metrics.json``, ``replay.png``),
+the pairs in parallel on fto-sweep's engine (:mod:`fto_ros.sweep.engine`: one
+worker process per core by default, ``--workers 1`` one after the other in this
+process); then a side-by-side markdown table is printed and written to
 ``OUT/report.md`` with links to the plots.
 
 The pairs are data, not code (:func:`plan`):
@@ -30,6 +32,8 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from ..sweep import engine as _engine  # noqa: F401  first: one BLAS thread per process
 
 PROG = "fto-report"
 SYSTEM = "dc_motor"
@@ -258,6 +262,7 @@ def markdown(pairs: list[Pair], notes: list[str], out: Path) -> str:
 
 # ------------------------------------------------------------------------- main
 def build_parser() -> argparse.ArgumentParser:
+    from .args import positive_int
     p = argparse.ArgumentParser(
         prog=PROG,
         description="Replay the DC-motor bags (and the other example systems' bags) through every "
@@ -269,24 +274,31 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--bags-dir", default="bags", metavar="DIR", help="bags directory (default: bags)")
     p.add_argument("--config-dir", default="config", metavar="DIR",
                    help="params files directory (default: config)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress bars (there are none with more than one worker)")
+    p.add_argument("--workers", type=positive_int, default=None, metavar="N",
+                   help="replays at once, each in a worker process (default: one per core; "
+                        "1 replays one after the other in this process)")
     return p
 
 
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
-    try:
-        return _main(args)
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted", file=sys.stderr)
-        return 130
+    from .args import guarded
+    return guarded(PROG, _main, build_parser().parse_args(argv))
+
+
+def _said(p: Pair) -> None:
+    """The line on stderr when a pair is done."""
+    if p.error:
+        print(f"{PROG}: error: {p.bag.name} with {p.config.name}: {p.error}", file=sys.stderr)
+    else:
+        print(f"{PROG}: {p.bag.name} with {p.config.name}: done "
+              f"({p.metrics['replay_speed_x_realtime']:.1f}x real time)", file=sys.stderr)
 
 
 def _main(args) -> int:
-    from ..bag import BagError
-    from ..core.errors import ConfigError
-    from ..replay import ReplayError, replay
-    from ..replay.cli import one_line
+    from ..sweep.engine import Engine, Lost
+    from ..sweep.tasks import Run, bag_size, execute
 
     out, bags_dir, config_dir = Path(args.out), Path(args.bags_dir), Path(args.config_dir)
     for d, what in ((bags_dir, "bags"), (config_dir, "config")):
@@ -311,19 +323,24 @@ def _main(args) -> int:
         if not p.bag.exists():
             p.error = (f"bag {p.bag} is missing (make it with: fto-simulate {SYSTEM} "
                        f"--out {p.bag} ...)")
-        else:
-            try:
-                p.metrics = replay(p.bag, p.params, p.out, overwrite=True,
-                                   progress=not args.no_progress)
-            except (ConfigError, BagError, ReplayError, OSError) as err:
-                p.error = one_line(err)
-            except Exception as err:  # one broken pair must not hide the others
-                p.error = f"unexpected {type(err).__name__}: {one_line(err)}"
-        if p.error:
-            print(f"{PROG}: error: {p.bag.name} with {p.config.name}: {p.error}", file=sys.stderr)
-        else:
-            print(f"{PROG}: {p.bag.name} with {p.config.name}: done "
-                  f"({p.metrics['replay_speed_x_realtime']:.1f}x real time)", file=sys.stderr)
+            _said(p)
+    todo = [p for p in pairs if p.error is None]
+    with Engine(workers=args.workers) as engine:
+        # a progress bar only when the replays run one after the other in this process
+        bars = engine.workers == 1 and not args.no_progress
+        runs = [Run(i, str(p.bag), tuple(map(str, p.params)), str(p.bag),
+                    tuple(map(str, p.params)), out=str(p.out), plot=True, progress=bars)
+                for i, p in enumerate(todo)]
+
+        def done(i: int, outcome) -> None:
+            if isinstance(outcome, Lost):
+                todo[i].error = outcome.message
+            else:
+                todo[i].metrics, todo[i].error = outcome.metrics, outcome.error
+            _said(todo[i])
+
+        engine.map(execute, [(r,) for r in runs], costs=[bag_size(p.bag) for p in todo],
+                   on_done=done)
     print(tables(pairs))
     report = out / "report.md"
     try:

@@ -14,7 +14,7 @@ import argparse
 import os
 import sys
 
-from ..cli.args import fraction, non_negative_float, positive_float
+from ..cli.args import fraction, non_negative_float, one_line, positive_float
 
 PROG = "fto-replay"
 
@@ -54,12 +54,6 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"error bound (state units) defining the measured convergence time "
                         f"(default {DEFAULT_TOLERANCE:g})")
     return p
-
-
-def one_line(err: BaseException | str) -> str:
-    """An error message on one line (YAML and other parsers give several), bounded."""
-    text = " ".join(str(err)[:4000].split())
-    return text if len(text) <= 1000 else text[:997] + "..."
 
 
 def _fmt(v, spec=".3g") -> str:
