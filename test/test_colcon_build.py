@@ -87,6 +87,13 @@ def test_build_installs_ros_layout(workspace):
     assert (prefix / 'share' / PKG / 'package.xml').is_file()
     for yaml in sorted((REPO / 'config').glob('*.yaml')):
         assert (prefix / 'share' / PKG / 'config' / yaml.name).is_file(), yaml.name
+    # `ros2 launch fto_ros <file>` looks in share/fto_ros/launch
+    launch_files = sorted((REPO / 'launch').glob('*.launch.py'))
+    assert launch_files, 'no launch files in launch/'
+    for launch in launch_files:
+        installed = prefix / 'share' / PKG / 'launch' / launch.name
+        assert installed.is_file(), f'share/{PKG}/launch/{launch.name} missing'
+        assert installed.read_text() == launch.read_text(), launch.name
     for exe in EXECUTABLES:
         path = prefix / 'lib' / PKG / exe
         assert path.is_file() and os.access(path, os.X_OK), f'lib/{PKG}/{exe} missing'

@@ -1,6 +1,6 @@
 """core/differentiator.py: Levant's robust exact differentiator, three discretisations.
 
-What is checked, measured (reference: /work/shared/reference/differentiators.md):
+What is checked, measured (docs/differentiator.md has the figures):
 - the gain tables (non-recursive l~ from the recursive lambdas, the closed-form
   eigenvalue-matched gains for n = 1..3) and the defining property of the default scheme:
   all eigenvalues of the discrete closed loop at 1 - w, n = 1..7 and with filtering;

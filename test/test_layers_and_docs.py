@@ -1,7 +1,8 @@
-"""Architecture and documentation checks that keep the layering and the README honest."""
+"""Architecture and documentation checks that keep the layering, the README and docs/ honest."""
 from __future__ import annotations
 
 import ast
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -14,7 +15,7 @@ from fto_ros.runner.settings import SETTINGS
 ROOT = Path(__file__).resolve().parents[1]
 PKG = ROOT / "fto_ros"
 
-#: layer -> top-level modules it must not import (DESIGN.md, "Layers")
+#: layer -> top-level modules it must not import (docs/architecture.md, "Layers")
 FORBIDDEN = {
     "core": {"rclpy", "rosbags", "mcap", "matplotlib", "fto_ros.observers", "fto_ros.runner",
              "fto_ros.nodes", "fto_ros.replay", "fto_ros.bag", "fto_ros.cli", "fto_ros.models",
@@ -77,17 +78,6 @@ def test_lower_layers_load_without_rclpy():
     subprocess.run([sys.executable, "-c", code], cwd=ROOT, check=True)
 
 
-def test_readme_documents_every_parameter():
-    readme = (ROOT / "README.md").read_text()
-    from fto_ros.cli.simulate_plant import SIM_PARAMS
-    from fto_ros.plant import PLANT_PARAMS
-    names = [p.name for p in SETTINGS]
-    names += [f"{t}.{p.name}" for t, cls in REGISTRY.items() for p in cls.PARAMS]
-    names += [f"plant.{p.name}" for p in PLANT_PARAMS] + [f"simulation.{p.name}" for p in SIM_PARAMS]
-    missing = [n for n in names if f"`{n}`" not in readme]
-    assert not missing, f"README.md lacks (regenerate with python -m fto_ros.cli.paramdoc): {missing}"
-
-
 def test_every_config_builds():
     """Every tuning file, with its system's plant file when it needs one (plant files are
     no configs of their own: runner/plant_files.py)."""
@@ -97,3 +87,138 @@ def test_every_config_builds():
     for path in sorted((ROOT / "config").glob("*.yaml")):
         if not is_plant_file(path):
             Runner(load_params_files(params_files(path)))
+
+
+
+# ---------------------------------------------------------------- documentation
+DOCS = ROOT / "docs"
+INTERFACE = DOCS / "ros_interface.md"
+REGENERATE = "regenerate with: python -m fto_ros.cli.paramdoc --write docs/ros_interface.md"
+
+
+def parameter_names() -> list[str]:
+    from fto_ros.cli.simulate_plant import SIM_PARAMS
+    from fto_ros.plant import PLANT_PARAMS
+    names = [p.name for p in SETTINGS]
+    names += [f"{t}.{p.name}" for t, cls in REGISTRY.items() for p in cls.PARAMS]
+    names += [f"plant.{p.name}" for p in PLANT_PARAMS] + [f"simulation.{p.name}" for p in SIM_PARAMS]
+    return names
+
+
+def test_ros_interface_documents_every_parameter():
+    page = INTERFACE.read_text()
+    missing = [n for n in parameter_names() if f"`{n}`" not in page]
+    assert not missing, f"docs/ros_interface.md lacks {missing} ({REGENERATE})"
+
+
+def test_ros_interface_parameter_tables_are_the_generators_output():
+    """The tables between the page's markers are exactly what paramdoc prints, so a changed
+    description, default or range fails too, and regenerating fixes it."""
+    from fto_ros.cli import paramdoc
+    printed = subprocess.run([sys.executable, "-m", "fto_ros.cli.paramdoc"], cwd=ROOT,
+                             capture_output=True, text=True, check=True).stdout
+    assert printed == paramdoc.generated()
+    block = paramdoc.generated_block(INTERFACE.read_text())
+    assert block is not None, f"docs/ros_interface.md lost its paramdoc marker lines ({REGENERATE})"
+    assert block == printed, f"docs/ros_interface.md's parameter tables are stale ({REGENERATE})"
+
+
+def test_paramdoc_write_fills_the_marked_block(tmp_path):
+    from fto_ros.cli import paramdoc
+    page = tmp_path / "page.md"
+    page.write_text(f"# title\n\n{paramdoc.BEGIN}\nold tables\n{paramdoc.END}\n\nafter\n")
+    assert paramdoc.main(["--write", str(page)]) == 0
+    text = page.read_text()
+    assert text.startswith("# title\n\n") and text.endswith(f"{paramdoc.END}\n\nafter\n")
+    assert paramdoc.generated_block(text) == paramdoc.generated()
+    page.write_text("no markers\n")
+    assert paramdoc.main(["--write", str(page)]) == 1
+    assert page.read_text() == "no markers\n"
+
+
+def test_every_observer_has_a_page_linked_from_the_readme():
+    readme = (ROOT / "README.md").read_text()
+    missing = [t for t in REGISTRY if not (DOCS / f"{t}.md").is_file()]
+    unlinked = [t for t in REGISTRY if f"](docs/{t}.md)" not in readme]
+    assert not missing and not unlinked, f"no docs/<type>.md: {missing}; not linked: {unlinked}"
+
+
+def _tracked_text_files():
+    """Every file of the repository (as git tracks it, plus untracked files it does not
+    ignore) that reads as UTF-8 text."""
+    out = subprocess.run(["git", "ls-files", "--cached", "--others", "--exclude-standard", "-z"],
+                         cwd=ROOT, capture_output=True, check=True).stdout
+    for name in out.decode().split("\0"):
+        path = ROOT / name
+        if not name or not path.is_file():
+            continue
+        try:
+            yield path, path.read_text()
+        except UnicodeDecodeError:
+            continue
+
+
+#: files that live outside the repository (spelt in pieces, so this test does not cite them)
+OUTSIDE = ("DESIGN" + ".md", "/work/" + "shared", "reference/" + "differentiators.md",
+           "reference/" + "ros_conventions.md")
+
+
+def test_nothing_cites_a_file_outside_the_repository():
+    """The architecture is documented in docs/architecture.md; a reader of the repository
+    cannot open a design file or a note that lives elsewhere."""
+    citing = [f"{p.relative_to(ROOT)}: {o}" for p, text in _tracked_text_files()
+              for o in OUTSIDE if o in text]
+    assert not citing, f"cite docs/ (architecture.md, the observer pages) instead: {citing}"
+
+
+MARKDOWN = [ROOT / "README.md", *sorted(DOCS.glob("*.md"))]
+
+
+def _anchor(heading: str) -> str:
+    """GitHub's anchor of a heading: lower case, punctuation dropped, spaces to hyphens."""
+    text = re.sub(r"[^\w\- ]", "", heading.strip().lower())
+    return text.replace(" ", "-")
+
+
+def _anchors(path: Path) -> set[str]:
+    text = re.sub(r"```.*?```", "", path.read_text(), flags=re.S)
+    return {_anchor(m.group(1)) for m in re.finditer(r"^#{1,6} +(.+?) *$", text, flags=re.M)}
+
+
+@pytest.mark.parametrize("page", MARKDOWN, ids=lambda p: str(p.relative_to(ROOT)))
+def test_relative_links_and_anchors_resolve(page):
+    text = re.sub(r"```.*?```", "", page.read_text(), flags=re.S)
+    broken = []
+    for target in re.findall(r"\]\(([^)\s]+)\)", text):
+        if re.match(r"[a-z]+:", target):
+            continue                                   # http(s), mailto: not checked here
+        file, _, anchor = target.partition("#")
+        dest = (page.parent / file).resolve() if file else page
+        if not dest.exists():
+            broken.append(target)
+        elif anchor and dest.suffix == ".md" and anchor not in _anchors(dest):
+            broken.append(target)
+    assert not broken, f"{page.relative_to(ROOT)}: broken links {broken}"
+
+
+def _prose_sentences(path: Path) -> set[str]:
+    """The sentences of a markdown file's prose (no code, tables, headings or images),
+    normalised, of at least 8 words."""
+    text = re.sub(r"```.*?```", "", path.read_text(), flags=re.S)
+    keep = [line for line in text.splitlines()
+            if not line.lstrip().startswith(("|", "#", "![", "<!--"))]
+    prose = " ".join(" ".join(keep).split())
+    sentences = re.split(r"(?<=[.!?;:])\s+", prose)
+    return {s.lower() for s in sentences if len(s.split()) >= 8}
+
+
+def test_readme_and_docs_do_not_repeat_each_other():
+    """The README says what the package is for and links to docs/; docs/ holds the details.
+    A sentence written twice drifts apart."""
+    readme = _prose_sentences(ROOT / "README.md")
+    repeated = {}
+    for page in sorted(DOCS.glob("*.md")):
+        both = readme & _prose_sentences(page)
+        if both:
+            repeated[page.name] = sorted(both)
+    assert not repeated, f"text repeated between README.md and docs/: {repeated}"

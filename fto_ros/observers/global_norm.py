@@ -26,8 +26,8 @@ every step: within a frozen step k_dot = 0 and the gain change is carried exactl
 re-basing (integrating chi across steps with a sampled k_dot loses ~1e-6 relative accuracy
 to the cancellation in xh = chi - k y when k is large).
 
-Numerics (DESIGN.md, "integrate linear parts exactly"): between two samples the gains are
-frozen at the mid-step value of w (w itself is integrated exactly for gamma_1(y) linear
+Numerics (linear parts integrated exactly, see docs/architecture.md): between two samples
+the gains are frozen at the mid-step value of w (w itself is integrated exactly for gamma_1(y) linear
 in time); the linear part x' = (S + k e0') x + G y(t) + E v(t) is then solved EXACTLY for
 y(t) a polynomial (first-order hold, or the quadratic through the last three samples) and
 v(t) linear, as x(h) = p(h) + exp(A h) (x(0) - p(0)), p the polynomial particular solution

@@ -127,7 +127,7 @@ def split(flat: Mapping[str, Any]) -> tuple[dict[str, Any], type, dict[str, Any]
             continue
         if k.split(".", 1)[0] in REGISTRY:
             continue
-        raise ConfigError(k, "unknown parameter (a typo? see the README's parameter list)")
+        raise ConfigError(k, "unknown parameter (a typo? see docs/ros_interface.md)")
     settings = resolve(SETTINGS, own)
     obs_cfg = resolve(cls.PARAMS, obs_values, prefix=section)
     return settings, cls, obs_cfg

@@ -1,0 +1,32 @@
+"""The cubic_escape example: start its observer with a committed params file.
+
+    ros2 launch fto_ros cubic_escape.launch.py [observer:=high_gain]
+
+observer picks the tuning, share/fto_ros/config/cubic_escape_<observer>.yaml; every argument of
+observer.launch.py but params_file applies too (node_name, namespace, use_sim_time, managed,
+autostart). With use_sim_time:=true, drive it with the recorded bag:
+ros2 bag play bags/cubic_escape --clock 1000
+"""
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument, IncludeLaunchDescription
+from launch.launch_description_sources import PythonLaunchDescriptionSource
+from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
+from launch_ros.substitutions import FindPackageShare
+
+
+def generate_launch_description():
+    share = FindPackageShare('fto_ros')
+    params_file = PathJoinSubstitution(
+        [share, 'config', ['cubic_escape_', LaunchConfiguration('observer'), '.yaml']])
+    return LaunchDescription([
+        DeclareLaunchArgument(
+            'observer', default_value='global_norm',
+            choices=['global_norm',
+                     'high_gain',
+                     'ekf'],
+            description='the tuning: config/cubic_escape_<observer>.yaml'),
+        IncludeLaunchDescription(
+            PythonLaunchDescriptionSource(
+                PathJoinSubstitution([share, 'launch', 'observer.launch.py'])),
+            launch_arguments={'params_file': params_file}.items()),
+    ])

@@ -1,0 +1,36 @@
+"""The dc_motor example: start its observer with a committed params file.
+
+    ros2 launch fto_ros dc_motor.launch.py [observer:=luenberger]
+
+observer picks the tuning, share/fto_ros/config/dc_motor_<observer>.yaml; every argument of
+observer.launch.py but params_file applies too (node_name, namespace, use_sim_time, managed,
+autostart). With use_sim_time:=true, drive it with the recorded bag:
+ros2 bag play bags/dc_motor_nominal --clock 1000
+"""
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument, IncludeLaunchDescription
+from launch.launch_description_sources import PythonLaunchDescriptionSource
+from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
+from launch_ros.substitutions import FindPackageShare
+
+
+def generate_launch_description():
+    share = FindPackageShare('fto_ros')
+    params_file = PathJoinSubstitution(
+        [share, 'config', ['dc_motor_', LaunchConfiguration('observer'), '.yaml']])
+    return LaunchDescription([
+        DeclareLaunchArgument(
+            'observer', default_value='single_delay',
+            choices=['single_delay',
+                     'single_delay_sampled',
+                     'luenberger',
+                     'luenberger_poles',
+                     'hosm',
+                     'newton',
+                     'ekf'],
+            description='the tuning: config/dc_motor_<observer>.yaml'),
+        IncludeLaunchDescription(
+            PythonLaunchDescriptionSource(
+                PathJoinSubstitution([share, 'launch', 'observer.launch.py'])),
+            launch_arguments={'params_file': params_file}.items()),
+    ])
