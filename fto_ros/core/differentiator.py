@@ -40,6 +40,20 @@ computed once in exact rational arithmetic.
 the previous sample held (all schemes; the explicit schemes need it when the
 sample rate is low for L, the default scheme does not).
 
+**The estimate at t_k uses the sample taken at t_k.**  Each recursion above is a
+predictor: z_k (the state) is made from f_0..f_(k-1); e_k = f_k - z0_k enters only
+the next step.  Published as it is, that estimate lags by one sample (an error of
+about h |f^(n+1)| on the top derivative).  What ``estimates`` publishes is the
+current (filtered) estimate of the same recursion: the next prediction made with
+f_k, shifted back along the chain over the same step,
+
+    z+_k = Phi(h_k)^-1 step(z_k, f_k, h_k)        (= z_k + Phi(-h_k) lambda_k e_k),
+
+h_k the last step.  The recursion (the state, its accuracy orders and its
+exactness on polynomials) is unchanged; only what is read off it uses one sample
+more.  On sin t + 0.5 sin 3t at 1 kHz without noise this divides the
+second-derivative error by 1.8-2.5 (order 2 and 3; test/test_differentiator.py).
+
 Errors: bad constructor arguments, a bad step or sample, or a step whose result
 would not be finite raise ValueError and leave the state untouched.
 """
@@ -192,10 +206,11 @@ def _positive(name: str, v) -> float:
 
 # -- single-channel fast path: an unrolled step generated per configuration ------------------
 def _build_scalar_step(scheme: str, NT: int, nf: int, abar: np.ndarray, K: np.ndarray | None,
-                       bbar: np.ndarray, r: float, c: np.ndarray | None):
-    """Compile ``step(z, fp, h) -> tuple`` for one channel: the same arithmetic as the
-    numpy path, unrolled with the constants inlined (the per-sample cost of a small
-    differentiator is interpreter overhead, not flops)."""
+                       bbar: np.ndarray, r: float, c: np.ndarray | None, back: np.ndarray):
+    """Compile ``step(z, fp, h) -> tuple`` and ``post(z, fp, h) -> tuple`` (the current
+    estimate, see the module doc) for one channel: the same arithmetic as the numpy path,
+    unrolled with the constants inlined (the per-sample cost of a small differentiator is
+    interpreter overhead, not flops)."""
     z = [f"z{p}" for p in range(NT)]
     L = ["def step(z, fp, h):", f"    {', '.join(z)}{',' if NT == 1 else ''} = z"]
     L += [f"    h{k} = h{k - 1} * h" if k > 1 else "    h1 = h" for k in range(1, NT)]
@@ -238,9 +253,18 @@ def _build_scalar_step(scheme: str, NT: int, nf: int, abar: np.ndarray, K: np.nd
         out.append(f"    n{p} = " + " + ".join(terms))
     L += out
     L.append(f"    return ({', '.join(f'n{p}' for p in range(NT))},)")
+    # the current estimate: the prediction made with the newest sample, shifted back by h
+    L += ["", "def post(z, fp, h):", f"    {', '.join(n_ for n_ in (f'n{p}' for p in range(NT)))}"
+          f"{',' if NT == 1 else ''} = step(z, fp, h)"]
+    L += [f"    h{k} = h{k - 1} * h" if k > 1 else "    h1 = h" for k in range(1, NT)]
+    for p in range(NT):
+        terms = [f"n{p}"] + [f"{float(back[p, q])!r} * {hp(q - p)} * n{q}"
+                             for q in range(p + 1, NT) if back[p, q] != 0.0]
+        L.append(f"    b{p} = " + " + ".join(terms))
+    L.append(f"    return ({', '.join(f'b{p}' for p in range(NT))},)")
     ns = {"expm1": math.expm1}
     exec("\n".join(L), ns)                                  # noqa: S102 (generated above)
-    return ns["step"]
+    return ns["step"], ns["post"]
 
 
 # -- the differentiator ----------------------------------------------------------------------
@@ -249,7 +273,8 @@ class Differentiator:
 
     Estimates z_0..z_n of f, f', ..., f^(n); L bounds |f^(n+1)|.  See the module
     docstring for the schemes.  ``update(h, f)`` is causal: it advances the state over h
-    with the innovation of the previous sample, then stores the new sample."""
+    with the innovation of the previous sample, stores the new sample, and publishes the
+    current estimate, which uses it (module doc)."""
 
     def __init__(self, order: int, L: float, *, channels: int = 1,
                  scheme: str = "eigenvalue_matched", rho: float = 2.0,
@@ -310,18 +335,25 @@ class Differentiator:
         self._abar = np.array(_scaled_chain(NT, nf), dtype=float)
         if scheme != "eigenvalue_matched":
             self._bbar = np.zeros(NT)
+        # Phi(h)^-1 in scaled coordinates (entry (p, q) times h^(q-p)): unit upper
+        # triangular, so the inverse is exact to round-off
+        self._back = np.linalg.inv(np.eye(NT) + np.eye(NT, k=1) if scheme == "euler"
+                                   else self._abar)
         self._mats = StepCache(self._build_mats, _CACHE_SIZE, exact=True)
-        self._S = np.zeros((self.channels, NT))
+        self._S = np.zeros((self.channels, NT))         # the predictor state z_k
+        self._post = np.zeros((self.channels, NT))      # the current estimate z+_k
         self._fprev = np.zeros(self.channels)
-        self._view = self._S[:, nf:]
+        self._view = self._post[:, nf:]
         self._view.flags.writeable = False
+        self._pred_view = self._S[:, nf:]
+        self._pred_view.flags.writeable = False
         self._ready = False
-        self._step1 = None
+        self._step1 = self._post1 = None
         self._z1 = None
         if self.channels == 1:                  # the unrolled single-channel step
-            self._step1 = _build_scalar_step(
+            self._step1, self._post1 = _build_scalar_step(
                 scheme, NT, nf, self._abar, self._K if scheme == "eigenvalue_matched" else None,
-                self._bbar, getattr(self, "_r", 0.0), getattr(self, "_c", None))
+                self._bbar, getattr(self, "_r", 0.0), getattr(self, "_c", None), self._back)
 
     # -- state ---------------------------------------------------------------------------
     def reset(self, f0, derivatives=None) -> None:
@@ -340,6 +372,7 @@ class Differentiator:
                 raise ValueError("derivatives: must be finite")
             S[:, self._nf + 1:] = d
         self._S[...] = S
+        self._post[...] = S                       # no step yet: nothing to add
         self._fprev[:] = f0
         self._ready = True
         self._z1 = tuple(S[0].tolist())
@@ -347,11 +380,12 @@ class Differentiator:
 
     def get_state(self):
         """Opaque snapshot (a copy) for set_state."""
-        return (self._S.copy(), self._fprev.copy(), self._ready)
+        return (self._S.copy(), self._post.copy(), self._fprev.copy(), self._ready)
 
     def set_state(self, state) -> None:
-        S, fprev, ready = state
+        S, post, fprev, ready = state
         self._S[...] = S
+        self._post[...] = post
         self._fprev[:] = fprev
         self._ready = ready
         self._z1 = tuple(self._S[0].tolist())
@@ -363,8 +397,14 @@ class Differentiator:
         return self._view
 
     @property
+    def predicted(self) -> np.ndarray:
+        """(channels, n + 1) read-only view of the recursion's state z_k at the last sample
+        (made from the samples before it; the accuracy theory is about this one)."""
+        return self._pred_view
+
+    @property
     def residual(self) -> np.ndarray:
-        """|f - z0| per channel at the last sample."""
+        """|f - z0| per channel at the last sample: the innovation of the recursion."""
         return np.abs(self._fprev - self._S[:, self._nf])
 
     # -- stepping ------------------------------------------------------------------------
@@ -378,7 +418,8 @@ class Differentiator:
 
     def update(self, h: float, f) -> np.ndarray:
         """Advance by h > 0 with the previous sample's innovation, then take the sample f.
-        Returns the estimates at the new sample time (read-only view, shape (channels, n+1))."""
+        Returns the current estimates at the new sample time, which use f (read-only view,
+        shape (channels, n+1); module doc)."""
         step1 = self._step1
         if step1 is not None and self._ready:     # channels == 1: pure-Python fast path
             if type(f) is float:
@@ -392,6 +433,7 @@ class Differentiator:
                 raise ValueError(f"h: the step must be finite and > 0, got {h!r}")
             z = self._z1
             fp = self._fp1
+            hs = h
             if self.max_step is not None and h > self.max_step:
                 m = math.ceil(h / self.max_step - 1e-9)
                 hs = h / m
@@ -399,13 +441,15 @@ class Differentiator:
                     z = step1(z, fp, hs)
             else:
                 z = step1(z, fp, h)
-            t = sum(z)
+            zp = self._post1(z, fv, hs)
+            t = sum(z) + sum(zp)
             if t - t != 0.0:
                 raise ValueError(f"h: the step {h!r} gives a non-finite estimate; "
                                  "state unchanged")
             self._z1 = z
             self._fp1 = fv
             self._S[0] = z
+            self._post[0] = zp
             self._fprev[0] = fv
             return self._view
         if not self._ready:
@@ -415,18 +459,27 @@ class Differentiator:
         fa = self._sample(f)
         h = float(h)
         S = self._S
+        hs = h
         if self.max_step is not None and h > self.max_step:
             m = math.ceil(h / self.max_step - 1e-9)
             hs = h / m
             for _ in range(m):
-                S = self._step(S, hs)
+                S = self._step(S, hs, self._fprev)
         else:
-            S = self._step(S, h)
-        if not np.all(np.isfinite(S)):
+            S = self._step(S, h, self._fprev)
+        post = self._step(S, hs, fa) @ self._back_mat(hs)
+        if not (np.all(np.isfinite(S)) and np.all(np.isfinite(post))):
             raise ValueError(f"h: the step {h!r} gives a non-finite estimate; state unchanged")
         self._S[...] = S
+        self._post[...] = post
         self._fprev[:] = fa
         return self._view
+
+    def _back_mat(self, h: float) -> np.ndarray:
+        """Phi(h)^-T, for rows: ``S @ _back_mat(h)`` shifts each row back by h."""
+        d = np.subtract.outer(np.arange(self._N), np.arange(self._N)).T   # q - p
+        with np.errstate(over="ignore"):
+            return (self._back * np.where(d >= 0, float(h) ** np.maximum(d, 0), 0.0)).T
 
     def _build_mats(self, h: float):
         NT = self._N
@@ -440,20 +493,21 @@ class Differentiator:
             bvec = (self._bbar * h ** self._nf) * hinv
         return np.ascontiguousarray(A.T), hinv, bvec
 
-    def _step(self, S: np.ndarray, h: float) -> np.ndarray:
+    def _step(self, S: np.ndarray, h: float, fp: np.ndarray) -> np.ndarray:
+        """One step of the recursion over h with the sample fp (channels,)."""
         AT, hinv, bvec = self._mats(h)
         nf = self._nf
         with np.errstate(over="ignore", invalid="ignore"):
             if self.scheme == "eigenvalue_matched":
-                e = (self._fprev - S[:, 0]) if nf == 0 else -S[:, 0]
+                e = (fp - S[:, 0]) if nf == 0 else -S[:, 0]
                 a = np.maximum(np.abs(e), 1e-300)
                 w = -np.expm1(-(h * self._r) * a ** (-1.0 / self._N))
                 W = w[:, None] ** np.arange(1, self._N + 1)
                 lam = (W @ self._K.T) * hinv
                 out = S @ AT + lam * e[:, None]
                 if nf:
-                    out += self._fprev[:, None] * bvec
+                    out += fp[:, None] * bvec
                 return out
-            e = self._fprev - S[:, 0]
+            e = fp - S[:, 0]
             corr = (h * self._c) * np.abs(e)[:, None] ** self._expo * np.sign(e)[:, None]
             return S @ AT + corr
