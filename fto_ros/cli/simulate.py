@@ -3,7 +3,7 @@
 Usage::
 
     fto-simulate MODEL --out BAG [--duration S] [--rate HZ] [--noise SIGMA]
-                 [--uncertainty] [--seed N]
+                 [--uncertainty] [--seed N] [--state-jump T,STATE,DELTA ...]
                  [--sample-times FILE | --sparse-min S --sparse-max S] [--overwrite]
     fto-simulate --params FILE [--params FILE ...] [--set NAME=VALUE] --out BAG [...]
 
@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import time
@@ -102,9 +103,45 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--output-disturbance", action="store_true",
                         help="add the model's deterministic output disturbance (models that "
                              "define one, e.g. fld_example1)")
+    parser.add_argument("--state-jump", action="append", default=[], metavar="T,STATE,DELTA",
+                        type=_state_jump,
+                        help="at time T (s) the state STATE (index or name) jumps by DELTA, "
+                             "e.g. 5.0,q_dot,4 (a collision); repeatable")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace BAG if it exists (only if it is a bag directory)")
     return parser
+
+
+def _state_jump(text: str) -> tuple[float, str, float]:
+    parts = text.split(",")
+    if len(parts) != 3:
+        raise argparse.ArgumentTypeError(f"expected T,STATE,DELTA, got {text!r}")
+    try:
+        t, delta = float(parts[0]), float(parts[2])
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"T and DELTA must be numbers, got {text!r}") from None
+    if not (math.isfinite(t) and math.isfinite(delta)):
+        raise argparse.ArgumentTypeError(f"T and DELTA must be finite, got {text!r}")
+    return t, parts[1].strip(), delta
+
+
+def _jumps(args, parser, spec) -> list[tuple[float, int, float]]:
+    """--state-jump values with the state as an index (a name is looked up)."""
+    names = list(getattr(spec, "state_names", None) or [])
+    out = []
+    for t, state, delta in args.state_jump:
+        if state.isdigit():
+            i = int(state)
+        elif state in names:
+            i = names.index(state)
+        else:
+            parser.error(f"--state-jump: unknown state {state!r} (states: "
+                         f"{', '.join(names) or 'by index 0..' + str(spec.n - 1)})")
+        if not (0 <= i < spec.n) or not (0.0 < t <= args.duration):
+            parser.error(f"--state-jump {t},{state},{delta}: needs 0 < T <= --duration and a "
+                         f"state index in 0..{spec.n - 1}")
+        out.append((t, i, delta))
+    return out
 
 
 def _plant_model(args):
@@ -205,6 +242,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{PROG}: error: {out}: output exists already (use --overwrite)", file=sys.stderr)
         return 1
 
+    jumps = _jumps(args, parser, spec)
     noise_ss, sample_ss = np.random.SeedSequence(args.seed).spawn(2)
     noise_rng, sample_rng = np.random.default_rng(noise_ss), np.random.default_rng(sample_ss)
     base = uniform_grid(args.duration, args.rate)
@@ -216,7 +254,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     delta1 = spec.uncertainty if args.uncertainty else None
     try:
         sim = simulate(f, spec.default_x0, t_all, spec.default_input, t_input=base,
-                       delta1=delta1, method=METHOD, rtol=RTOL, atol=ATOL)
+                       delta1=delta1, method=METHOD, rtol=RTOL, atol=ATOL, jumps=jumps)
     except ValueError as err:
         print(f"{PROG}: error: simulation failed: {err}", file=sys.stderr)
         return 1
@@ -270,6 +308,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                         "description": spec.uncertainty_description if args.uncertainty
                         else "none"},
         "seed": args.seed,
+        "state_jumps": [{"t": t, "state": spec.state_names[i] if i < len(spec.state_names)
+                         else i, "delta": d} for t, i, d in jumps],
         "integrator": {"method": METHOD, "rtol": RTOL, "atol": ATOL,
                        "scheme": "piecewise between consecutive instants, input held exactly"},
         "topics": topics,

@@ -15,6 +15,8 @@ initial state, default input profile, default model uncertainty and a factory
 """
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass, field
 from typing import Callable, Mapping, Sequence
 
@@ -137,6 +139,7 @@ def simulate(
     method: str = "DOP853",
     rtol: float = 1e-11,
     atol: float = 1e-12,
+    jumps: Sequence[tuple[float, int, float]] = (),
 ) -> SimulationResult:
     """Simulate ``x' = f(t, x, u) + delta1(t)`` under a zero-order-hold input.
 
@@ -159,6 +162,9 @@ def simulate(
         rng: numpy Generator for the noise (required if any sigma > 0, so
             that every noisy simulation is explicitly seeded).
         method, rtol, atol: passed to ``solve_ivp`` for every piece.
+        jumps: ``(t, i, delta)``: at time t (t0 < t <= the last sample) state i jumps by
+            delta (x_i(t+) = x_i(t-) + delta: a collision, an impact); a sample at t sees
+            the state after the jump.
 
     Returns:
         A :class:`SimulationResult`.
@@ -189,8 +195,14 @@ def simulate(
     u_k = np.array([_as_1d(u_profile(float(tk)), "u_profile(t)") for tk in t_u])
     m = u_k.shape[1]
 
-    # Breakpoints: union of sample instants and input instants (>= t0).
-    t_break = np.union1d(t_s, np.maximum(t_u, t0))
+    jump_at: dict[float, list[tuple[int, float]]] = {}
+    for tj, i, delta in jumps:
+        if not (t0 < tj <= t_end) or not (0 <= i < n) or not math.isfinite(delta):
+            raise ValueError(f"jump ({tj}, {i}, {delta}): needs {t0} < t <= {t_end}, a state "
+                             f"index in 0..{n - 1} and a finite size")
+        jump_at.setdefault(float(tj), []).append((int(i), float(delta)))
+    # Breakpoints: union of sample instants, input instants (>= t0) and jumps.
+    t_break = np.union1d(np.union1d(t_s, np.maximum(t_u, t0)), np.array(sorted(jump_at)))
     out_idx = np.searchsorted(t_break, t_s)
     # index of the input acting on [t_break[i], t_break[i+1])
     u_idx = np.searchsorted(t_u, t_break, side="right") - 1
@@ -210,7 +222,9 @@ def simulate(
                         first_step=tb - ta)
         if not sol.success:
             raise ValueError(f"integration failed on [{ta}, {tb}]: {sol.message}")
-        x = sol.y[:, -1]
+        x = sol.y[:, -1].copy()
+        for i_state, delta in jump_at.get(float(tb), ()):
+            x[i_state] += delta
         if not np.all(np.isfinite(x)):
             raise ValueError(f"state became non-finite at t = {tb}")
         x_break[i + 1] = x
