@@ -40,8 +40,8 @@ SYSTEM = "dc_motor"
 #: bags that must be there; every other BAGS_DIR/dc_motor_* is used when present
 REQUIRED_BAGS = ("dc_motor_nominal", "dc_motor_noisy")
 #: row order: these bags and observers first (in this order), the rest alphabetically
-BAG_ORDER = ("dc_motor_nominal", "dc_motor_noisy", "dc_motor_sampled")
-CONFIG_ORDER = ("dc_motor_single_delay", "dc_motor_luenberger")
+BAG_ORDER = ("dc_motor_nominal", "dc_motor_noisy", "dc_motor_collision", "dc_motor_sampled")
+CONFIG_ORDER = ("dc_motor_single_delay", "dc_motor_luenberger", "dc_motor_acquire_track")
 
 
 @dataclass

@@ -69,7 +69,7 @@ class Outputs:
         self.est_stamped_msg = JointState(name=list(obs.state_names))
         self.est_stamped_msg.header.frame_id = frame
         self.conv = pub(Float64MultiArray, "~/convergence")
-        self.conv_msg = labelled_array(CONVERGENCE_FIELDS)
+        self.conv_msg = labelled_array(CONVERGENCE_FIELDS + tuple(obs.CONVERGENCE_EXTRA))
         self.ui = self.ui_stamped = None
         if type(obs).unknown_input is not Observer.unknown_input:  # the class identifies one
             names = list(getattr(obs, "unknown_input_names", None) or

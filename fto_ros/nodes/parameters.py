@@ -95,9 +95,17 @@ class NodeParameters:
             raise ConfigError("observer.type", "missing: say which observer to run (one of "
                               + ", ".join(sorted(REGISTRY)) + ") in the params file or with "
                               "-p observer.type:=NAME")
-        cls = observer_class(type_name)
+        classes = [observer_class(type_name)]
+        for role in getattr(classes[0], "CHILD_ROLES", ()):     # a composition's children
+            full = f"{type_name}.{role}"
+            spec = next(p for p in classes[0].PARAMS if p.name == role)
+            raw = node.get_parameter(full) if node.has_parameter(full) else overrides.get(full)
+            child = spec.default if raw is None else typed_override(spec, full, raw)
+            if child is None:
+                raise ConfigError(full, f"required: {spec.description}")
+            classes.append(observer_class(child))
         specs = [(p.name, p) for p in SETTINGS] + \
-                [(f"{cls.TYPE}.{p.name}", p) for p in cls.PARAMS] + \
+                [(f"{c.TYPE}.{p.name}", p) for c in classes for p in c.PARAMS] + \
                 [(PLANT_PREFIX + p.name, p) for p in PLANT_PARAMS]      # the plant block
         for full, p in specs:
             if node.has_parameter(full):

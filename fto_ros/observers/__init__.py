@@ -14,12 +14,14 @@ from .high_gain import HighGainObserver
 from .hosm import HosmObserver
 from .newton_inversion import NewtonInversionObserver
 from .ekf import ExtendedKalmanFilter
+from .track import TrackObserver
 
 REGISTRY: dict[str, type[Observer]] = {
     cls.TYPE: cls for cls in (NewtonInversionObserver, SingleDelayObserver, PrescribedTimeObserver, LuenbergerObserver, HosmObserver)
 }
 REGISTRY.update({cls.TYPE: cls for cls in (GlobalNormObserver, HighGainObserver)})
 REGISTRY[ExtendedKalmanFilter.TYPE] = ExtendedKalmanFilter
+REGISTRY[TrackObserver.TYPE] = TrackObserver
 
 
 def observer_class(type_name: str) -> type[Observer]:

@@ -342,6 +342,20 @@ class Observer(abc.ABC):
         """The observer-specific health figure published on ``convergence``."""
         return float("nan")
 
+    @property
+    def converged(self) -> bool | None:
+        """Whether the estimate has converged, for an observer that knows it better than the
+        runner's rule (guaranteed time reached, else residual below the threshold); None:
+        the runner's rule."""
+        return None
+
+    #: labels of observer-specific values published on ``convergence`` after the common ones
+    CONVERGENCE_EXTRA: tuple[str, ...] = ()
+
+    def convergence_extra(self) -> tuple[float, ...]:
+        """The values labelled by CONVERGENCE_EXTRA (finite)."""
+        return ()
+
     #: what ``health`` is, for the docs and the diagnostics
     HEALTH_NAME: str = ""
 

@@ -143,3 +143,26 @@ def json_safe(obj: Any) -> Any:
         v = float(obj)
         return v if math.isfinite(v) else None
     return obj
+
+
+def composition(t_s: np.ndarray, conv: np.ndarray, fields: Sequence[str]) -> dict[str, Any]:
+    """The acquire-then-track figures of a run from its ``convergence`` rows (``mode``,
+    ``handovers``, ``reacquisitions`` columns) at times ``t_s`` (s since the observer's
+    first sample): the acquisition time (first sample tracking), the hand-over and
+    re-acquisition counts, and when each hand-over and re-acquisition happened (the first
+    20 of each)."""
+    i_mode, i_hand, i_re = (list(fields).index(k) for k in ("mode", "handovers", "reacquisitions"))
+    mode = conv[:, i_mode] if conv.size else np.zeros(0)
+    tracking = np.flatnonzero(mode == 1.0)
+    hand = np.flatnonzero(np.diff(conv[:, i_hand]) > 0) + 1 if conv.size else np.zeros(0, int)
+    re = np.flatnonzero(np.diff(conv[:, i_re]) > 0) + 1 if conv.size else np.zeros(0, int)
+    return {
+        "acquisition_time_s": float(t_s[tracking[0]]) if tracking.size else None,
+        "handovers": int(conv[-1, i_hand]) if conv.size else 0,
+        "reacquisitions": int(conv[-1, i_re]) if conv.size else 0,
+        "handover_times_s": [float(t_s[i]) for i in hand[:20]],
+        "reacquisition_times_s": [float(t_s[i]) for i in re[:20]],
+        "definition": "times in s since the observer's first accepted sample; acquisition "
+                      "time = the first sample published from the tracker; the counts are "
+                      "the observer's own (they survive restarts)",
+    }

@@ -50,7 +50,7 @@ from ..bag import BagError
 from ..bag.reader import jazzy_typestore
 from ..observers.base import Observer
 from ..runner.params_file import load_params_files
-from ..runner.runner import CONVERGENCE_FIELDS, LEVEL_NAMES, Runner
+from ..runner.runner import LEVEL_NAMES, Runner
 from . import metrics as M
 from .run import _Run, _run
 from .topics import DEFAULT_NODE_NAME, ReplayError, node_fqn  # noqa: F401 (public names)
@@ -170,7 +170,7 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
     n = obs.n_states
     t_est_ns = np.asarray(run.est_t, dtype=np.int64)
     x_est = np.vstack(run.est_x) if run.est_x else np.zeros((0, n))
-    conv = np.vstack(run.est_conv) if run.est_conv else np.zeros((0, len(CONVERGENCE_FIELDS)))
+    conv = np.vstack(run.est_conv) if run.est_conv else np.zeros((0, len(runner.convergence_fields)))
     gt = float(obs.guaranteed_time)
     if after is not None:
         settle, settle_rule = float(after), "given (after= / --after)"
@@ -275,6 +275,9 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
             str(k): (v if isinstance(v, (int, float, str, bool)) or v is None else str(v))
             for k, v in obs.diagnostics().items()},
     }
+    if "mode" in runner.convergence_fields:            # a composition (track)
+        t_rel = (t_est_ns - t_start_ns) / 1e9 if t_start_ns is not None else np.zeros(0)
+        metrics["composition"] = M.composition(t_rel, conv, runner.convergence_fields)
     if ui_plot is not None or "truth_ui" in run.roles:
         # only for observers that identify an unknown input, or bags that carry its truth
         metrics.update(

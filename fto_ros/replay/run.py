@@ -183,7 +183,8 @@ def _run(runner: Runner, bag_path: Path, out_dir: Path, fqn: str, overwrite: boo
         w_conv = bag.raw_writer(f"{fqn}/convergence", F64_ARRAY)
         enc_est = enc.float_array(obs.n_states, names)
         enc_est_st = enc.joint_state(names, (obs.n_states, 0, 0), frame)
-        enc_conv = enc.float_array(len(CONVERGENCE_FIELDS), CONVERGENCE_FIELDS, "list")
+        fields = CONVERGENCE_FIELDS + tuple(obs.CONVERGENCE_EXTRA)
+        enc_conv = enc.float_array(len(fields), fields, "list")
         w_ui = w_ui_st = w_js = enc_js = None
         if type(obs).unknown_input is not Observer.unknown_input:  # the class identifies one
             ui_names = list(getattr(obs, "unknown_input_names", None) or

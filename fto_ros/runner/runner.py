@@ -110,6 +110,11 @@ class Runner:
     def observer_type(self) -> str:
         return self.observer_class.TYPE
 
+    @property
+    def convergence_fields(self) -> tuple[str, ...]:
+        """The labels of the ``convergence`` values: the common ones, then the observer's."""
+        return CONVERGENCE_FIELDS + tuple(self.observer.CONVERGENCE_EXTRA)
+
     def reconfigure(self, flat_params: Mapping[str, Any]) -> None:
         """Apply changed parameters: validate everything, then swap in a new observer.
 
@@ -322,11 +327,14 @@ class Runner:
         gt = obs.guaranteed_time
         res = obs.output_residual
         thr = self.settings["convergence.residual_threshold"]
-        # without a guarantee (asymptotic observers) only the residual can say it
-        converged = since >= gt - 1e-9 if math.isfinite(gt) else (math.isfinite(res) and res <= thr)
+        converged = obs.converged
+        if converged is None:
+            # without a guarantee (asymptotic observers) only the residual can say it
+            converged = since >= gt - 1e-9 if math.isfinite(gt) else \
+                (math.isfinite(res) and res <= thr)
         health = obs.health
         conv = np.array([since, res if math.isfinite(res) else -1.0, float(converged), gt,
-                         health if math.isfinite(health) else 0.0])
+                         health if math.isfinite(health) else 0.0, *obs.convergence_extra()])
         js = None
         if self._js is not None:
             names, idx = self._js

@@ -11,6 +11,7 @@ from typing import Any, Mapping
 from ..core.errors import ConfigError
 from ..observers import REGISTRY, observer_class
 from ..observers.base import Param, resolve
+from ..observers.track import TrackObserver
 from ..plant import expand as expand_plant
 from .params_file import flatten, load_params_file, load_params_files  # noqa: F401  (re-exported)
 
@@ -105,31 +106,50 @@ SETTINGS: tuple[Param, ...] = (
 ROS_BUILTIN = ("use_sim_time", "start_type_description_service")
 
 
+def _observer(flat: Mapping[str, Any], type_name: Any) -> tuple[type, dict[str, Any], dict[str, Any]]:
+    """(class, typed config, flat parameters after the plant expansion) of observer
+    ``type_name`` as configured by ``flat`` (its section, the plant block)."""
+    sub = dict(flat)
+    sub["observer.type"] = type_name
+    if type_name == TrackObserver.TYPE:            # a composition: its children expand
+        sub = {k: v for k, v in sub.items() if not k.startswith("plant.")}
+        adapt = None
+    else:
+        sub, adapt = expand_plant(sub)
+    cls = observer_class(type_name)
+    if adapt is not None:
+        cls = adapt(cls)
+    section = cls.TYPE + "."
+    values = {k[len(section):]: v for k, v in sub.items() if k.startswith(section)}
+    cfg = resolve(cls.PARAMS, values, prefix=section)
+    for role in getattr(cls, "CHILD_ROLES", ()):
+        child, child_cfg, _ = _observer(flat, cfg[role])
+        cfg[role + "_observer"] = (child, child_cfg)
+    return cls, cfg, sub
+
+
 def split(flat: Mapping[str, Any]) -> tuple[dict[str, Any], type, dict[str, Any]]:
     """(typed settings, observer class, typed observer config) from flat parameters.
 
     Sections of other registered observers are ignored (one file may carry
     several); any other unknown name is refused.  A plant block (``plant.*``) is
-    expanded first into the chosen observer's explicit parameters (fto_ros.plant).
+    expanded first into the chosen observer's explicit parameters (fto_ros.plant); a
+    composition (``track``) gets its children's classes and configs in its config.
     """
-    flat, adapt = expand_plant(flat)
     known = {p.name for p in SETTINGS}
-    own = {k: v for k, v in flat.items() if k in known}
-    type_name = own.get("observer.type")
+    type_name = flat.get("observer.type")
     if type_name is None:
         raise ConfigError("observer.type", "missing: say which observer to run (one of "
                           + ", ".join(sorted(REGISTRY)) + ")")
-    cls = adapt(observer_class(type_name))
+    cls, obs_cfg, flat = _observer(flat, type_name)
     section = cls.TYPE + "."
-    obs_values = {k[len(section):]: v for k, v in flat.items() if k.startswith(section)}
     for k in flat:
         if k in known or k.startswith(section) or k in ROS_BUILTIN:
             continue
         if k.split(".", 1)[0] in REGISTRY:
             continue
         raise ConfigError(k, "unknown parameter (a typo? see docs/ros_interface.md)")
-    settings = resolve(SETTINGS, own)
-    obs_cfg = resolve(cls.PARAMS, obs_values, prefix=section)
+    settings = resolve(SETTINGS, {k: v for k, v in flat.items() if k in known})
     return settings, cls, obs_cfg
 
 
