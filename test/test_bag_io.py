@@ -365,3 +365,26 @@ def test_bag_layer_imports_no_rclpy():
     code = ("import sys, fto_ros.bag, fto_ros.cli.simulate; "
             "sys.exit(1 if 'rclpy' in sys.modules else 0)")
     assert subprocess.run([sys.executable, "-c", code], cwd=ROOT).returncode == 0
+
+
+def test_simulate_cli_state_jump(tmp_path, capsys):
+    """--state-jump: the state jumps by DELTA at T (the sample at T sees it), nothing else
+    changes before T, the metadata records it; bad values are refused (exit 2)."""
+    plain, jump = tmp_path / "plain", tmp_path / "jump"
+    assert run_cli("dc_motor", "--out", plain, "--duration", 0.3) == 0
+    assert run_cli("dc_motor", "--out", jump, "--duration", 0.3,
+                   "--state-jump", "0.15,q_dot,4") == 0
+    a, b = ({t: np.array(m.data) for topic, t, m in read_messages(p)
+             if topic == "/dc_motor/true_state"} for p in (plain, jump))
+    t_j = 150_000_000
+    assert all(np.array_equal(a[t], b[t]) for t in a if t < t_j)
+    assert b[t_j][1] - a[t_j][1] == pytest.approx(4.0, abs=1e-9)
+    assert b[t_j][0] == pytest.approx(a[t_j][0], abs=1e-12)       # q itself does not jump
+    settings = json.loads(bag_info(jump).custom_data[cli.METADATA_KEY])
+    assert settings["state_jumps"] == [{"t": 0.15, "state": "q_dot", "delta": 4.0}]
+    capsys.readouterr()
+    for bad in ("0.15,speed,4", "0.15,q_dot", "9.0,q_dot,1", "0.1,7,1", "nan,q_dot,1"):
+        with pytest.raises(SystemExit) as exc:
+            run_cli("dc_motor", "--out", tmp_path / "bad", "--duration", 0.3, "--state-jump", bad)
+        assert exc.value.code == 2
+        assert "--state-jump" in capsys.readouterr().err

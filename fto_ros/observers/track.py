@@ -30,7 +30,8 @@ estimate stays published (the acquirer's estimate before its guaranteed time is 
 estimate of anything), flagged as not converged, until the acquirer hands over again.
 
 Outputs: ``convergence`` carries ``mode`` (0 acquiring, 1 tracking, 2 re-acquiring),
-``handovers`` and ``reacquisitions`` after the common fields; ``converged`` is 1 exactly
+``handovers`` and ``reacquisitions`` since the last (re)start after the common fields
+(so a restarted observer publishes what a fresh one does; /diagnostics has the totals); ``converged`` is 1 exactly
 while tracking; ``health`` is the window statistic over its threshold (>= 1 re-acquires).
 No unknown-input estimate is published (the tracker has none).  ROS-free.
 """
@@ -125,7 +126,8 @@ class TrackObserver(Observer):
         else:
             self.handover_covariance = self._noise_covariance()
             self.covariance_source = "measured: the acquirer on measurement noise alone"
-        self.handovers = self.reacquisitions = 0
+        self.handovers = self.reacquisitions = 0      # over the observer's life (diagnostics)
+        self._run_handovers = self._run_reacquisitions = 0   # since the last (re)start
         self._mode = ACQUIRING
         self._nis: deque[float] = deque()
         self._nis_sum = 0.0
@@ -172,6 +174,7 @@ class TrackObserver(Observer):
         self.acquirer.reset(None, x0_hat)
         self.tracker.reset(None)
         self._mode = ACQUIRING
+        self._run_handovers = self._run_reacquisitions = 0
         self._clear_window()
         self._quiet = 0
 
@@ -196,6 +199,7 @@ class TrackObserver(Observer):
             return
         if self._inconsistent(self.tracker.nis):
             self.reacquisitions += 1
+            self._run_reacquisitions += 1
             self._mode = REACQUIRING
             self._clear_window()
             self._quiet = 0
@@ -222,9 +226,13 @@ class TrackObserver(Observer):
         try:
             k.update_checked(self._t, y, u)
         except SampleRejected:
-            k.reset(None)                             # try again at the next sample
+            # the tracker cannot start here: publish the acquirer (past its guarantee) and
+            # try again at the next sample
+            k.reset(None)
+            self._mode = ACQUIRING
             return
         self.handovers += 1
+        self._run_handovers += 1
         self._mode = TRACKING
         self._clear_window()
 
@@ -269,7 +277,7 @@ class TrackObserver(Observer):
         return MODE_NAMES[self._mode]
 
     def convergence_extra(self) -> tuple[float, ...]:
-        return float(self._mode), float(self.handovers), float(self.reacquisitions)
+        return float(self._mode), float(self._run_handovers), float(self._run_reacquisitions)
 
     @property
     def health(self):
@@ -282,6 +290,8 @@ class TrackObserver(Observer):
             "mode": self.mode,
             "hand-overs": str(self.handovers),
             "re-acquisitions": str(self.reacquisitions),
+            "since the last restart": f"{self._run_handovers} hand-over(s), "
+                                      f"{self._run_reacquisitions} re-acquisition(s)",
             "NIS window sum / threshold": f"{self._nis_sum:.4g} / {self.threshold:.4g} over "
                                          f"{len(self._nis)} of {self.window} samples",
             "false alarms (bound)": f"{self.false_alarm:.3g} per test, "

@@ -146,23 +146,22 @@ def json_safe(obj: Any) -> Any:
 
 
 def composition(t_s: np.ndarray, conv: np.ndarray, fields: Sequence[str]) -> dict[str, Any]:
-    """The acquire-then-track figures of a run from its ``convergence`` rows (``mode``,
-    ``handovers``, ``reacquisitions`` columns) at times ``t_s`` (s since the observer's
-    first sample): the acquisition time (first sample tracking), the hand-over and
-    re-acquisition counts, and when each hand-over and re-acquisition happened (the first
-    20 of each)."""
-    i_mode, i_hand, i_re = (list(fields).index(k) for k in ("mode", "handovers", "reacquisitions"))
-    mode = conv[:, i_mode] if conv.size else np.zeros(0)
-    tracking = np.flatnonzero(mode == 1.0)
-    hand = np.flatnonzero(np.diff(conv[:, i_hand]) > 0) + 1 if conv.size else np.zeros(0, int)
-    re = np.flatnonzero(np.diff(conv[:, i_re]) > 0) + 1 if conv.size else np.zeros(0, int)
+    """The acquire-then-track figures of a run from the ``mode`` column of its
+    ``convergence`` rows (0 acquiring, 1 tracking, 2 re-acquiring) at times ``t_s`` (s since
+    the observer's first sample): the acquisition time (the first row tracking), and the
+    hand-overs (rows entering mode 1) and re-acquisitions (rows entering mode 2), counted
+    and timed (the first 20 of each) over the whole run, across restarts."""
+    mode = conv[:, list(fields).index("mode")] if conv.size else np.zeros(0)
+    prev = np.concatenate(([0.0], mode[:-1]))
+    hand = np.flatnonzero((mode == 1.0) & (prev != 1.0))
+    re = np.flatnonzero((mode == 2.0) & (prev != 2.0))
     return {
-        "acquisition_time_s": float(t_s[tracking[0]]) if tracking.size else None,
-        "handovers": int(conv[-1, i_hand]) if conv.size else 0,
-        "reacquisitions": int(conv[-1, i_re]) if conv.size else 0,
+        "acquisition_time_s": float(t_s[hand[0]]) if hand.size else None,
+        "handovers": int(hand.size),
+        "reacquisitions": int(re.size),
         "handover_times_s": [float(t_s[i]) for i in hand[:20]],
         "reacquisition_times_s": [float(t_s[i]) for i in re[:20]],
         "definition": "times in s since the observer's first accepted sample; acquisition "
-                      "time = the first sample published from the tracker; the counts are "
-                      "the observer's own (they survive restarts)",
+                      "time = the first sample published from the tracker; counted from "
+                      "the published mode over the whole run (restarts included)",
     }
