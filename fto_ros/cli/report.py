@@ -155,7 +155,24 @@ def tables(pairs: list[Pair]) -> str:
     for system in dict.fromkeys(system_of(p) for p in pairs):
         group = [p for p in pairs if system_of(p) == system]
         out += [f"**{system}**", "", table(group), ""]
+        composed = [p for p in group if p.metrics and p.metrics.get("composition")]
+        if composed:
+            out += [f"*{system}, acquire then track* (the `track` rows above)", "",
+                    composition_table(composed), ""]
     return "\n".join(out).rstrip()
+
+
+def composition_table(pairs: list[Pair]) -> str:
+    """Acquisition time, hand-overs and re-acquisitions (with their times) of the
+    compositions' replays."""
+    rows = [["bag", "params", "acquisition time (s)", "hand-overs", "re-acquisitions",
+             "re-acquired at (s)"], ["---"] * 6]
+    for p in pairs:
+        c = p.metrics["composition"]
+        rows.append([p.bag.name, p.config.name, _g(c["acquisition_time_s"], 4),
+                     str(c["handovers"]), str(c["reacquisitions"]),
+                     ", ".join(_g(t, 4) for t in c["reacquisition_times_s"]) or "-"])
+    return "\n".join("| " + " | ".join(row) + " |" for row in rows)
 
 
 # ------------------------------------------------------------------------ table
