@@ -8,9 +8,10 @@ import os
 
 __version__ = "0.1.0"
 
-# The observers work on matrices of a few rows, where a BLAS thread pool only adds hand-off
-# cost, and on a loaded machine a lot of it: scipy's expm of a 7x7 matrix (one EKF
-# prediction) measured 208 us with OpenBLAS's default threads on a busy 2-core machine,
-# 21 us with one.  So one BLAS thread, unless the user chose otherwise; this takes effect
-# when fto_ros is imported before numpy (every fto_ros command and node), else it is a no-op.
+# One BLAS thread per process, unless the user chose otherwise.  The observers work on
+# matrices of a few rows, where OpenBLAS's spin-waiting thread pool only costs: a whole
+# core at 1 kHz in the node on a 2-core machine, 40-60 % more CPU than a replay itself in
+# the sweep workers (which inherit it), and scipy's expm of a 7x7 matrix (one EKF
+# prediction) 208 us instead of 21 us on a busy machine.  It takes effect when fto_ros is
+# imported before numpy (every fto_ros command and node: this runs first); else a no-op.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")

@@ -33,7 +33,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..sweep import engine as _engine  # noqa: F401  first: one BLAS thread per process
 
 PROG = "fto-report"
 SYSTEM = "dc_motor"

@@ -5,24 +5,19 @@ parameter or argument: one log line names it)."""
 from __future__ import annotations
 
 import gc
-import os
 import sys
 from typing import Callable
 
-# One BLAS thread: the updates are tiny matrix products, and OpenBLAS's worker threads
-# spin-wait, which cost a whole core at 1 kHz on a 2-core machine (set it before numpy).
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+import rclpy
+import rclpy.logging
+import rclpy.utilities
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 
-import rclpy  # noqa: E402
-import rclpy.logging  # noqa: E402
-import rclpy.utilities  # noqa: E402
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor  # noqa: E402
-
-from ..core.errors import ConfigError  # noqa: E402
-from ..observers import REGISTRY  # noqa: E402
-from ..runner.params_file import load_params_file  # noqa: E402
-from ..runner.runner import CONVERGENCE_FIELDS  # noqa: E402
-from ..runner.settings import SETTINGS  # noqa: E402
+from ..core.errors import ConfigError
+from ..observers import REGISTRY
+from ..runner.params_file import load_params_file
+from ..runner.runner import CONVERGENCE_FIELDS
+from ..runner.settings import SETTINGS
 
 NODE_NAME = "observer_node"
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import sys
 
-from .entry import NODE_NAME, run  # (sets OPENBLAS_NUM_THREADS before numpy loads)
+from .entry import NODE_NAME, run
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 

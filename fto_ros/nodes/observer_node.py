@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import sys
 
-from .entry import NODE_NAME, run  # (sets OPENBLAS_NUM_THREADS before numpy loads)
+from .entry import NODE_NAME, run
 from rclpy.node import Node  # noqa: E402
 
 from .observer_core import ObserverCore  # noqa: E402

@@ -33,7 +33,7 @@ from ..observers.base import Observer, SampleRejected, check_vector
 from . import settings as S
 from .gate import OutlierGate, channel_limits, exceeds
 from .health import FAILURES, HealthWindow
-from .timeline import CONFIRM, FIRST, HOLD, REJECT, STEP, Held, classify
+from .timeline import CONFIRM, HOLD, REJECT, STEP, Held, classify
 
 OK, WARN, ERROR = 0, 1, 2
 LEVEL_NAMES = {OK: "OK", WARN: "WARN", ERROR: "ERROR"}

@@ -27,7 +27,6 @@ import sys
 import time
 from pathlib import Path
 
-from . import engine as _engine  # noqa: F401  first: one BLAS thread per process (see there)
 
 PROG = "fto-sweep"
 

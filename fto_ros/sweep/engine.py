@@ -34,13 +34,7 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
-# One BLAS thread per process (as the node has, and as Dask's nanny gives its workers): a
-# replay's matrix products are tiny, and OpenBLAS's spin-waiting threads took 40-60 % more
-# CPU than the replay itself, a second core that a second worker needs.  Set before numpy
-# loads: the command lines import this module first, and worker processes inherit it.
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-
-from ..cli.args import one_line  # noqa: E402
+from ..cli.args import one_line
 
 #: seconds to wait for the scheduler to answer, and for a cluster to have a worker
 CONNECT_TIMEOUT_S = 30.0
