@@ -39,7 +39,7 @@ setup(
         *_share('launch', '*.py'),
     ],
     install_requires=_requirements(),
-    extras_require={'test': ['pytest>=7', 'hypothesis>=6']},
+    extras_require={'test': ['pytest>=7', 'hypothesis>=6', 'pytest-xdist>=3.5']},
     entry_points={
         'console_scripts': [
             'fto-observer = fto_ros.nodes.observer_node:main',

@@ -27,7 +27,8 @@ def generate_launch_description():
                      'luenberger_poles',
                      'hosm',
                      'newton',
-                     'ekf'],
+                     'ekf',
+                     'acquire_track'],
             description='the tuning: config/dc_motor_<observer>.yaml'),
         IncludeLaunchDescription(
             PythonLaunchDescriptionSource(

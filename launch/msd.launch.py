@@ -28,7 +28,8 @@ def generate_launch_description():
                      'prescribed_time',
                      'global_norm',
                      'high_gain',
-                     'ekf'],
+                     'ekf',
+                     'acquire_track'],
             description='the tuning: config/msd_<observer>.yaml'),
         IncludeLaunchDescription(
             PythonLaunchDescriptionSource(

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.live]   # live: it starts the installed node
 
 REPO = Path(__file__).resolve().parents[1]
 PKG = 'fto_ros'

@@ -90,7 +90,7 @@ def test_every_pair_has_a_bound():
 
 @pytest.mark.parametrize("pair", PAIRS, ids=lambda p: f"{p.bag.name}-{p.config.stem}")
 def test_committed_bag_replays_within_bounds(pair, tmp_path):
-    m = replay(pair.bag, pair.params, tmp_path / "out", progress=False)
+    m = replay(pair.bag, pair.params, tmp_path / "out", progress=False, plot=False)
     assert m["samples_rejected"] == 0 and m["restarts"] == 0
     assert m["samples_accepted"] == m["sample_count"] > 1000
     err = m["errors"]["per_state"]
@@ -186,7 +186,7 @@ def test_every_example_pair_has_a_bound():
 @pytest.mark.parametrize("pair", EXAMPLES, ids=lambda p: f"{p.bag.name}-{p.config.stem}")
 def test_example_replays_within_bounds(pair, tmp_path):
     bound = EXAMPLE_BOUNDS[(pair.bag.name, pair.config.stem)]
-    m = replay(pair.bag, pair.params, tmp_path / "out", progress=False)
+    m = replay(pair.bag, pair.params, tmp_path / "out", progress=False, plot=False)
     assert m["samples_rejected"] == 0 and m["samples_accepted"] == m["sample_count"] > 1000
     worst = max(e["max_abs_after_settle"] for e in m["errors"]["per_state"].values())
     assert worst < bound, m["errors"]["per_state"]

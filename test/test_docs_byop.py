@@ -15,6 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+#: live DDS nodes: scripts/run-tests runs these after the rest, one at a time
+pytestmark = pytest.mark.live
+
 ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "bring_your_own_plant.md"
 

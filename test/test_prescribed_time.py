@@ -659,6 +659,7 @@ def test_example_configs_build_the_papers_observers():
 
 
 # ------------------------------------------------------------------- the live node
+@pytest.mark.live
 @pytest.mark.slow
 def test_live_node_runs_window_after_window_without_error_growth(tmp_path):
     """The node over DDS (JointState source: exact header stamps, y = position and u = effort

@@ -159,6 +159,7 @@ def test_refused_samples_leave_the_composition_untouched():
     assert np.linalg.norm(out.estimate - x) < 1.0
 
 
+@pytest.mark.live
 @pytest.mark.slow
 def test_live_node_runs_the_composition(tmp_path):
     pytest.importorskip("rclpy")

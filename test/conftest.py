@@ -1,0 +1,28 @@
+"""The fault-injection suite's totals (test/faultkit.py COUNTS), printed in pytest's
+terminal summary, summed over pytest-xdist's worker processes when there are several."""
+from __future__ import annotations
+
+import pytest
+
+from faultkit import COUNTS
+
+
+def pytest_sessionfinish(session):
+    if hasattr(session.config, "workeroutput"):           # an xdist worker: hand them over
+        session.config.workeroutput["fault_counts"] = dict(COUNTS)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node, error):                     # xdist controller: add them up
+    COUNTS.update(getattr(node, "workeroutput", {}).get("fault_counts", {}))
+
+
+def pytest_terminal_summary(terminalreporter):
+    cli = {k[4:]: v for k, v in COUNTS.items() if k.startswith("cli_")}
+    runner = {k: v for k, v in COUNTS.items() if not k.startswith("cli_")}
+    for what, unit, counts in (("runner", "operations", runner),
+                               ("command line", "runs", cli)):
+        if counts:
+            terminalreporter.write_line(
+                f"fault injection ({what}): {sum(counts.values())} {unit}, by family: "
+                + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())))
