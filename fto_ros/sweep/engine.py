@@ -237,8 +237,15 @@ class Engine:
         pool = ProcessPoolExecutor(min(workers, len(todo)), mp_context=ctx,
                                    initializer=_init_local_worker, initargs=(queue,))
         try:
-            futures = {pool.submit(_tracked, fn, i, arglists[i]): i for i in todo}
-            pending, broken = set(futures), False
+            futures: dict = {}
+            broken = False
+            for i in todo:
+                try:
+                    futures[pool.submit(_tracked, fn, i, arglists[i])] = i
+                except BrokenProcessPool:         # a worker died while the rest was submitted:
+                    broken = True                 # the unsubmitted tasks go to the next round
+                    break
+            pending = set(futures)
             while pending and not broken:
                 finished, pending = wait(pending, return_when=FIRST_COMPLETED)
                 for f in finished:
