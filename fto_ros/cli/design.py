@@ -14,9 +14,10 @@ class included), 1 any other failure.  ``FTO_DEBUG=1`` shows an unexpected trace
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from pathlib import Path
+
+from .args import guarded, one_line
 
 PROG = "fto-design"
 
@@ -88,9 +89,11 @@ def design(paths: list[Path], overrides: dict, node_name: str | None, out) -> in
 
 
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
+    return guarded(PROG, _main, build_parser().parse_args(argv))
+
+
+def _main(args: argparse.Namespace) -> int:
     from ..core.errors import ConfigError
-    from ..replay.cli import one_line
     from ..runner.params_file import parse_override
     try:
         overrides = dict(parse_override(text) for text in args.set)
@@ -98,15 +101,6 @@ def main(argv=None) -> int:
     except ConfigError as err:
         print(f"{PROG}: error: {one_line(err)}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted", file=sys.stderr)
-        return 130
-    except Exception as err:  # never a traceback for the user
-        if os.environ.get("FTO_DEBUG"):
-            raise
-        print(f"{PROG}: error: unexpected {type(err).__name__}: {one_line(err)} "
-              f"(FTO_DEBUG=1 shows the traceback)", file=sys.stderr)
-        return 1
 
 
 if __name__ == "__main__":

@@ -9,8 +9,8 @@ Every message carries the time of the measurement it is for (never now()):
   ``header.stamp`` = the sample's stamp, ``header.frame_id`` = ``output.frame_id``,
   ``name`` = the names, ``position`` = the values (velocity and effort empty), for
   message_filters, TF and every time-aware tool;
-- ``~/convergence``: Float64MultiArray labelled with CONVERGENCE_FIELDS (non-finite
-  values, i.e. "no guarantee", as -1.0);
+- ``~/convergence``: Float64MultiArray labelled with convergence_fields (the common
+  fields, then the observer's; non-finite values, i.e. "no guarantee", as -1.0);
 - ``~/estimated_joint_states`` when configured.
 
 Publishers are reliable, keep last 10, without QoS event handlers (each is rebuilt into
@@ -34,7 +34,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from ..observers.base import Observer
-from ..runner.runner import CONVERGENCE_FIELDS
+from ..runner.runner import convergence_fields
 
 #: how often the subscription counts of the per-sample topics are refreshed (s)
 REFRESH_S = 0.1
@@ -69,7 +69,7 @@ class Outputs:
         self.est_stamped_msg = JointState(name=list(obs.state_names))
         self.est_stamped_msg.header.frame_id = frame
         self.conv = pub(Float64MultiArray, "~/convergence")
-        self.conv_msg = labelled_array(CONVERGENCE_FIELDS + tuple(obs.CONVERGENCE_EXTRA))
+        self.conv_msg = labelled_array(convergence_fields(obs))
         self.ui = self.ui_stamped = None
         if type(obs).unknown_input is not Observer.unknown_input:  # the class identifies one
             names = list(getattr(obs, "unknown_input_names", None) or

@@ -18,7 +18,7 @@ from ..bag.cdr import F64_ARRAY, JOINT_STATE, Encoders
 from ..bag.reader import jazzy_typestore
 from ..observers.base import Observer
 from ..runner.messages import joint_state_sample
-from ..runner.runner import CONVERGENCE_FIELDS, LEVEL_NAMES, Runner
+from ..runner.runner import LEVEL_NAMES, Runner, convergence_fields
 from .streams import _check_topic, _read_streams, _Streams
 from .topics import resolve_topic
 
@@ -183,7 +183,7 @@ def _run(runner: Runner, bag_path: Path, out_dir: Path, fqn: str, overwrite: boo
         w_conv = bag.raw_writer(f"{fqn}/convergence", F64_ARRAY)
         enc_est = enc.float_array(obs.n_states, names)
         enc_est_st = enc.joint_state(names, (obs.n_states, 0, 0), frame)
-        fields = CONVERGENCE_FIELDS + tuple(obs.CONVERGENCE_EXTRA)
+        fields = convergence_fields(obs)
         enc_conv = enc.float_array(len(fields), fields, "list")
         w_ui = w_ui_st = w_js = enc_js = None
         if type(obs).unknown_input is not Observer.unknown_input:  # the class identifies one

@@ -41,6 +41,11 @@ LEVEL_NAMES = {OK: "OK", WARN: "WARN", ERROR: "ERROR"}
 #: order of the values on the ``convergence`` topic
 CONVERGENCE_FIELDS = ("time_since_start", "output_residual", "converged", "guaranteed_time", "health")
 
+
+def convergence_fields(obs: Observer) -> tuple[str, ...]:
+    """The labels of ``obs``'s ``convergence`` values: the common ones, then its own."""
+    return CONVERGENCE_FIELDS + tuple(obs.CONVERGENCE_EXTRA)
+
 #: stamps must fit a builtin_interfaces/Time (int32 seconds) and not be negative
 MAX_STAMP = float(2 ** 31)
 #: what ``process`` returns for a sample held at a time discontinuity (not a rejection:
@@ -113,7 +118,7 @@ class Runner:
     @property
     def convergence_fields(self) -> tuple[str, ...]:
         """The labels of the ``convergence`` values: the common ones, then the observer's."""
-        return CONVERGENCE_FIELDS + tuple(self.observer.CONVERGENCE_EXTRA)
+        return convergence_fields(self.observer)
 
     def reconfigure(self, flat_params: Mapping[str, Any]) -> None:
         """Apply changed parameters: validate everything, then swap in a new observer.
