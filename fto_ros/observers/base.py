@@ -16,6 +16,7 @@ import numpy as np
 
 from ..core.discretize import STEP_QUANTUM, quanta
 from ..core.errors import ConfigError, short
+from ..core.reasons import REJECTIONS
 
 
 #: parameter kinds, mapped one to one onto ROS 2 parameter types
@@ -362,3 +363,125 @@ class Observer(abc.ABC):
     def diagnostics(self) -> dict[str, Any]:
         """Observer-specific key-values for /diagnostics (human-readable)."""
         return {}
+
+
+class KernelObserver(Observer):
+    """An observer family as a compiled per-sample kernel (observers/kernel.py) plus this
+    adapter: the subclass designs and builds the kernel's constants and work memory once
+    (``_build_kernel``); everything per sample goes through the kernel, here as in the
+    runner's block loop.  ``update`` and ``reset`` keep the observer protocol for callers that
+    drive an observer directly (the paper tests); the runner hands ``program()`` to its
+    compiled loop."""
+
+    #: the kernel module: its ``kernel(op, ...)`` function
+    KERNEL = None
+
+    def _build_kernel(self, c, ic, wk, state_size: int, models=()) -> None:
+        from ..core import jit as J
+        from ..core.model_code import none_kernel
+        from . import kernel as K
+        self._K = K
+        self._c = np.ascontiguousarray(c, dtype=float)
+        self._ic = np.ascontiguousarray(ic, dtype=np.int64)
+        self._wk = np.ascontiguousarray(wk, dtype=float)
+        self._st = np.zeros(int(state_size))
+        self._nx = np.zeros(int(state_size))
+        self._st[K.RESIDUAL] = math.nan
+        self._st[K.CONVERGED] = -1.0
+        self._st[K.GUARANTEED] = math.inf
+        self._clk = np.array([math.nan, 0.0, math.nan])
+        self.models = list(models)
+        self._kernels = J.function_list([J.kernel(self.KERNEL.kernel, J.KERNEL)], J.KERNELS)
+        slots = self.models + [None] * (J.MODEL_SLOTS - len(self.models))
+        self._models = J.function_list([none_kernel() if m is None else m.kernel for m in slots],
+                                       J.MODELS)
+        self._empty = np.zeros(0)
+
+    # -- the protocol, through the kernel ---------------------------------------------
+    def _restart(self, x0_hat):
+        has = x0_hat is not None
+        x0 = np.ascontiguousarray(x0_hat, dtype=float) if has else self._empty
+        self._K.restart(self._kernels, self._models, self._st, self._nx, self._c, self._ic,
+                        self._wk, self._clk, x0, has)
+
+    def reset(self, t0=None, x0_hat=None) -> None:
+        self._restart(None if x0_hat is None else np.array(x0_hat, dtype=float))
+
+    def update_checked(self, t, y, u) -> None:
+        code = self._K.update(self._kernels, self._models, self._st, self._nx, self._c,
+                              self._ic, self._wk, self._clk, float(t),
+                              np.ascontiguousarray(y, dtype=float),
+                              np.ascontiguousarray(u, dtype=float))
+        if code:
+            raise SampleRejected(REJECTIONS[code])
+
+    def advance(self, t, u) -> None:
+        """Integrate to t with the new input u (families that predict between samples)."""
+        code = self._K.advance(self._kernels, self._models, self._st, self._nx, self._c,
+                               self._ic, self._wk, self._clk, float(t),
+                               np.ascontiguousarray(u, dtype=float), self._empty)
+        if code:
+            raise SampleRejected(REJECTIONS[code])
+
+    @property
+    def has_advance(self) -> bool:
+        return bool(self._ic[self._K.HAS_ADVANCE])
+
+    def _first(self, y, u, gap):          # the kernel's job; never called
+        raise NotImplementedError
+
+    def _step(self, s, h, y, u):
+        raise NotImplementedError
+
+    # -- what the state says ----------------------------------------------------------
+    @property
+    def started(self) -> bool:
+        return not math.isnan(self._clk[0])
+
+    @property
+    def time_since_start(self) -> float:
+        return self._clk[1] * STEP_QUANTUM
+
+    @property
+    def max_step(self) -> float:
+        return float(self._c[self._K.MAX_STEP])
+
+    @property
+    def estimate(self) -> np.ndarray:
+        o, n = self._ic[self._K.EST], self._ic[self._K.N_STATES]
+        return self._st[o:o + n]
+
+    @property
+    def unknown_input(self):
+        n = self._ic[self._K.N_UI]
+        if n == 0:
+            return None
+        o = self._ic[self._K.UI]
+        return self._st[o:o + n]
+
+    @property
+    def output_residual(self) -> float:
+        return float(self._st[self._K.RESIDUAL])
+
+    @property
+    def health(self) -> float:
+        return float(self._st[self._K.HEALTH])
+
+    @property
+    def guaranteed_time(self) -> float:
+        return float(self._st[self._K.GUARANTEED])
+
+    @property
+    def converged(self):
+        v = self._st[self._K.CONVERGED]
+        return None if v < 0 else bool(v)
+
+    def convergence_extra(self) -> tuple[float, ...]:
+        o, n = self._ic[self._K.EXTRA], self._ic[self._K.N_EXTRA]
+        return tuple(self._st[o:o + n].tolist())
+
+    def program(self):
+        """What the runner's block loop takes: (kernels, models, state, candidate, consts,
+        integer consts, work, clock)."""
+        return (self._kernels, self._models, self._st, self._nx, self._c, self._ic, self._wk,
+                self._clk)

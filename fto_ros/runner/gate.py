@@ -1,5 +1,5 @@
 """Plausibility limits and the outlier gate: what the runner refuses before a sample can
-reach the observer.  ROS-free, no observer knowledge.
+reach the observer.  No observer knowledge.
 
 **Limits.**  A measurement or input whose absolute value exceeds its per-channel limit
 (``limits.measurement``, ``limits.input``: one value for every channel, or one per
@@ -11,12 +11,12 @@ two accepted ones (variable step): the innovation ``e = y - y_pred`` of a model-
 predictor, available for every observer before its update, so a rejected sample never
 touches the observer's state; it is expressed in units of the innovation of equal steps of
 the typical length (``_innovation``), so dropped samples do not look like glitches.  Its
-recent scale ``sigma`` is the RMS of e over the last
-``outlier.window`` accepted samples (an exponentially weighted mean square), floored at
-``outlier.min_scale``.  Once the observer has converged (the runner says when) and the
-scale has a quarter window of history, a sample with ``|e_i| > threshold * sigma_i`` on
-any channel is rejected as ``outlier``.  On the committed bags the largest ratio
-|e| / sigma is 4.5 (noisy DC motor, cubic escape); the default threshold is 20.
+recent scale ``sigma`` is the RMS of e over the last ``outlier.window`` accepted samples
+(an exponentially weighted mean square), floored at ``outlier.min_scale``.  Once the
+observer has converged (the runner says when) and the scale has a quarter window of
+history, a sample with ``|e_i| > threshold * sigma_i`` on any channel is rejected as
+``outlier``.  On the committed bags the largest ratio |e| / sigma is 4.5 (noisy DC motor,
+cubic escape); the default threshold is 20.
 
 A real change (a collision, a step of the signal) also starts as "outliers"; what tells it
 from a glitch is that it persists: the rejected samples are extrapolated among
@@ -26,15 +26,33 @@ on them (counted under ``outlier_rebase``).  Random junk never agrees with itsel
 ``outlier.max_consecutive`` rejections in a row the gate re-bases anyway, so it can never
 lock the observer out of a signal whose character changed (e.g. much noisier).  Each
 re-base also restarts the scale estimate.
+
+The gate's memory is a slice ``g`` of the runner's state (``layout`` gives its places for p
+channels and ``confirm`` held samples); its functions are compiled (core/jit.py).
 """
 from __future__ import annotations
 
 import math
-from typing import Any, Mapping, Sequence
+from typing import Sequence
 
 import numpy as np
 
 from ..core.errors import ConfigError
+from ..core.jit import jit
+
+#: no gating when one of the last two steps is this many times longer than the other (a
+#: line through samples either side of a pause says nothing about the next one)
+MAX_STEP_RATIO = 4.0
+ACCEPT, OUTLIER, REBASE = 0, 1, 2
+# scalar places in the gate's slice; arrays follow (see ``size``)
+NPREV, PT0, PT1, N, NHELD, RUN, H = range(7)
+_SCALARS = 7
+
+
+@jit
+def size(p, confirm):
+    """Floats of the gate's memory for p channels and ``confirm`` held samples."""
+    return _SCALARS + 4 * p + confirm * (1 + p)
 
 
 def channel_limits(values: Sequence[float], n: int, parameter: str) -> np.ndarray:
@@ -46,125 +64,143 @@ def channel_limits(values: Sequence[float], n: int, parameter: str) -> np.ndarra
     return np.asarray(values, dtype=float)
 
 
-def exceeds(v, limits: np.ndarray) -> bool:
-    """Whether any |v_i| > limits_i (v: a checked sequence of finite numbers)."""
-    for x, lim in zip(v, limits):
-        if abs(x) > lim:
+@jit
+def exceeds(v, limits):
+    """Whether any |v_i| > limits_i."""
+    for i in range(v.shape[0]):
+        if abs(v[i]) > limits[i]:
             return True
     return False
 
 
-class OutlierGate:
-    """The model-free innovation gate of the module docstring, for p channels."""
+@jit
+def clear(g, p, confirm):
+    """Forget the history (a restart of the observer, a re-base)."""
+    g[:size(p, confirm)] = 0.0
 
-    #: no gating when one of the last two steps is this many times longer than the other (a
-    #: line through samples either side of a pause says nothing about the next one)
-    MAX_STEP_RATIO = 4.0
 
-    def __init__(self, settings: Mapping[str, Any], p: int):
-        self.threshold = settings["outlier.threshold"]
-        self.alpha = 1.0 / settings["outlier.window"]
-        self.min_history = max(2, settings["outlier.window"] // 4)
-        self.confirm = settings["outlier.confirm"]
-        self.max_consecutive = settings["outlier.max_consecutive"]
-        self.floor = channel_limits(settings["outlier.min_scale"], p, "outlier.min_scale").tolist()
-        self.p = p
-        self.clear()
+@jit
+def _innovation(g, p, t1, y1, t2, y2, t, y, streak, e):
+    """e = y minus the line through (t1, y1) and (t2, y2), in units of the innovation of
+    equal steps of the typical length; False when there is no usable line.
 
-    @property
-    def enabled(self) -> bool:
-        return self.threshold > 0
+    Irregular steps (samples dropped on a loaded machine) make the raw innovation larger
+    for a reason that is not a glitch: with r = (t - t2)/(t2 - t1) its noise part grows
+    by sqrt((1 + r^2 + (1 + r)^2) / 6) and the extrapolation error of a smooth signal by
+    (t - t2)(t - t1) / (2 h^2) (h: the typical step); the larger divides it.  In a streak
+    of rejected samples only the noise part does (the line of the last accepted samples
+    is what they are measured against: junk must not get through by lasting).  After a
+    pause in the accepted history (one step much longer than the other) there is no line.
+    """
+    h1 = t2 - t1
+    d = t - t2
+    if not h1 > 0 or not d > 0 or h1 > MAX_STEP_RATIO * d \
+            or (d > MAX_STEP_RATIO * h1 and not streak):
+        return False
+    r = d / h1
+    f = math.sqrt((1.0 + r * r + (1.0 + r) ** 2) / 6.0)
+    hh = g[H]
+    if not streak and hh > 0:
+        f = max(f, d * (d + h1) / (2.0 * hh * hh))
+    for i in range(p):
+        e[i] = (y[i] - (y2[i] + (y2[i] - y1[i]) * r)) / f
+    return True
 
-    def clear(self) -> None:
-        """Forget the history (a restart of the observer, a re-base)."""
-        self._prev: list[tuple[float, np.ndarray]] = []     # last two accepted (t, y)
-        self._ms = [0.0] * self.p                           # mean square of e
-        self._n = 0                                         # innovations in _ms
-        self._held: list[tuple[float, np.ndarray]] = []     # last rejected (t, y), in a row
-        self._run = 0                                       # rejections in a row
-        self._h = 0.0                                       # typical step (mean, s)
 
-    def _innovation(self, a, b, t: float, y, streak: bool = False) -> list[float] | None:
-        """y minus the line through the samples a and b, in units of the innovation of equal
-        steps of the typical length (None: no usable line).
+@jit
+def _within(g, p, e):
+    lim = g[_SCALARS + 3 * p:_SCALARS + 4 * p]
+    for i in range(p):
+        if not abs(e[i]) <= lim[i]:
+            return False
+    return True
 
-        Irregular steps (samples dropped on a loaded machine) make the raw innovation larger
-        for a reason that is not a glitch: with r = (t - t2)/(t2 - t1) its noise part grows
-        by sqrt((1 + r^2 + (1 + r)^2) / 6) and the extrapolation error of a smooth signal by
-        (t - t2)(t - t1) / (2 h^2) (h: the typical step); the larger divides it.  In a streak
-        of rejected samples only the noise part does (the line of the last accepted samples
-        is what they are measured against: junk must not get through by lasting).  After a
-        pause in the accepted history (one step much longer than the other) there is no line.
-        Plain floats: p is small, and numpy's per-call cost would be most of the work.
-        """
-        (t1, y1), (t2, y2) = a, b
-        h1, d = t2 - t1, t - t2
-        if not h1 > 0 or not d > 0 or h1 > self.MAX_STEP_RATIO * d \
-                or (d > self.MAX_STEP_RATIO * h1 and not streak):
-            return None
-        r = d / h1
-        f = math.sqrt((1.0 + r * r + (1.0 + r) ** 2) / 6.0)
-        if not streak and self._h > 0:
-            f = max(f, d * (d + h1) / (2.0 * self._h * self._h))
-        return [(yi - (bi + (bi - ai) * r)) / f for yi, ai, bi in zip(y, y1, y2)]
 
-    def _within(self, e: list[float]) -> bool:
-        return all(abs(v) <= lim for v, lim in zip(e, self._limit))
+@jit
+def check(g, p, confirm, threshold, min_history, max_consecutive, floor, t, y, active, e):
+    """ACCEPT, OUTLIER (reject y at t) or REBASE (accept it as a confirmed change; the
+    caller counts it).  Call ``accepted`` for every sample the observer then takes.  ``e``
+    is scratch of p floats."""
+    if not threshold > 0 or not active or g[N] < min_history:
+        return ACCEPT
+    py0 = g[_SCALARS:_SCALARS + p]
+    py1 = g[_SCALARS + p:_SCALARS + 2 * p]
+    if not _innovation(g, p, g[PT0], py0, g[PT1], py1, t, y, g[RUN] > 0, e):
+        return ACCEPT
+    ms = g[_SCALARS + 2 * p:_SCALARS + 3 * p]
+    lim = g[_SCALARS + 3 * p:_SCALARS + 4 * p]
+    for i in range(p):
+        lim[i] = threshold * max(math.sqrt(ms[i]), floor[i])
+    if _within(g, p, e):
+        if g[RUN] > 0:
+            g[NHELD] = 0.0
+            g[RUN] = 0.0
+        return ACCEPT
+    # the held rejected samples, oldest first: the last `confirm` of them
+    ht = g[_SCALARS + 4 * p:_SCALARS + 4 * p + confirm]
+    hy = g[_SCALARS + 4 * p + confirm:_SCALARS + 4 * p + confirm * (1 + p)].reshape(confirm, p)
+    nh = int(g[NHELD])
+    if nh == confirm:
+        for k in range(confirm - 1):
+            ht[k] = ht[k + 1]
+            hy[k, :] = hy[k + 1, :]
+        nh -= 1
+    ht[nh] = t
+    hy[nh, :] = y
+    nh += 1
+    g[NHELD] = nh
+    g[RUN] += 1.0
+    # the last `confirm` rejected samples continue each other: a persisting change
+    persisting = nh == confirm
+    if persisting:
+        for k in range(2, nh):
+            if not (_innovation(g, p, ht[k - 2], hy[k - 2], ht[k - 1], hy[k - 1], ht[k], hy[k],
+                                False, e) and _within(g, p, e)):
+                persisting = False
+                break
+    if persisting or g[RUN] >= max_consecutive:
+        tb = ht[nh - 2] if nh >= 2 else 0.0
+        yb = hy[max(nh - 2, 0), :].copy()
+        clear(g, p, confirm)
+        if nh >= 2:
+            g[NPREV] = 1.0
+            g[PT1] = tb
+            g[_SCALARS + p:_SCALARS + 2 * p] = yb
+        return REBASE
+    return OUTLIER
 
-    def check(self, t: float, y, active: bool) -> str | None:
-        """'outlier' to reject y at t, 'rebase' to accept it as a confirmed change (the
-        caller counts it), None to accept it.  Call ``accepted`` for every sample the
-        observer then takes."""
-        if not self.enabled or not active or self._n < self.min_history:
-            return None
-        e = self._innovation(*self._prev, t, y, streak=self._run > 0)
-        if e is None:
-            return None
-        self._limit = [self.threshold * max(math.sqrt(ms), fl) for ms, fl in zip(self._ms, self.floor)]
-        if self._within(e):
-            if self._run:
-                self._held.clear()
-                self._run = 0
-            return None
-        held = self._held
-        held.append((t, list(y)))
-        del held[:-self.confirm]
-        self._run += 1
-        # the last `confirm` rejected samples continue each other: a persisting change
-        persisting = len(held) == self.confirm and all(
-            (e_h := self._innovation(held[i - 2], held[i - 1], *held[i])) is not None
-            and self._within(e_h) for i in range(2, len(held)))
-        if persisting or self._run >= self.max_consecutive:
-            base = held[-2:-1]
-            self.clear()
-            self._prev = base
-            return "rebase"
-        return "outlier"
 
-    def accepted(self, t: float, y) -> None:
-        """Record a sample the observer took."""
-        prev = self._prev
-        if prev:
-            step = t - prev[-1][0]
-            if step > 0:
-                self._h = step if self._h == 0 else self._h + self.alpha * (step - self._h)
-        if len(prev) == 2:
-            e = self._innovation(prev[0], prev[1], t, y)
-            if e is not None:
-                a = self.alpha if self._n else 1.0
-                self._ms = [ms + a * (v * v - ms) for ms, v in zip(self._ms, e)]
-                self._n += 1
-            self._prev = [prev[1], (t, y)]
-        else:
-            self._prev = prev + [(t, y)]
+@jit
+def accepted(g, p, alpha, t, y, e):
+    """Record a sample the observer took."""
+    npv = int(g[NPREV])
+    py0 = g[_SCALARS:_SCALARS + p]
+    py1 = g[_SCALARS + p:_SCALARS + 2 * p]
+    if npv > 0:
+        step = t - g[PT1]
+        if step > 0:
+            g[H] = step if g[H] == 0 else g[H] + alpha * (step - g[H])
+    if npv == 2:
+        if _innovation(g, p, g[PT0], py0, g[PT1], py1, t, y, False, e):
+            a = alpha if g[N] > 0 else 1.0
+            ms = g[_SCALARS + 2 * p:_SCALARS + 3 * p]
+            for i in range(p):
+                ms[i] = ms[i] + a * (e[i] * e[i] - ms[i])
+            g[N] += 1.0
+    if npv >= 1:
+        g[PT0] = g[PT1]
+        py0[:] = py1
+    g[PT1] = t
+    py1[:] = y
+    g[NPREV] = min(npv + 1, 2)
 
-    def scale(self) -> list[float]:
-        """The current sigma per channel (before the floor)."""
-        return [math.sqrt(ms) for ms in self._ms]
 
-    def summary(self) -> str:
-        if not self.enabled:
-            return "off"
-        if self._n < self.min_history:
-            return f"learning ({self._n} of {self.min_history} samples)"
-        return "sigma " + ", ".join(f"{v:.3g}" for v in self.scale())
+def summary(g: np.ndarray, p: int, threshold: float, min_history: int) -> str:
+    """One line for /diagnostics."""
+    if not threshold > 0:
+        return "off"
+    n = int(g[N])
+    if n < min_history:
+        return f"learning ({n} of {min_history} samples)"
+    ms = g[_SCALARS + 2 * p:_SCALARS + 3 * p]
+    return "sigma " + ", ".join(f"{math.sqrt(v):.3g}" for v in ms)

@@ -1,8 +1,9 @@
 """The one adapter between (t, y, u) samples and an observer, for node AND replay.
 
-The live node and the replay harness both call ``set_input`` / ``process`` /
-``status`` here, so replaying a bag in CI exercises exactly what the node does
-on live topics.  The runner is the one owner of time and validity:
+The live node and the replay harness both call ``set_input`` / ``process`` (one sample)
+or ``process_block`` (many) and ``status`` here, so replaying a bag in CI exercises
+exactly what the node does on live topics.  The runner is the one owner of time and
+validity:
 
 - it checks every sample once (a sequence of the right length of finite numbers,
   within the plausibility limits; a stamp that is finite and representable as a ROS
@@ -11,10 +12,14 @@ on live topics.  The runner is the one owner of time and validity:
   rejected stamp, or a discontinuity confirmed by the next sample before the
   observer is restarted once;
 - it gates outliers before the observer sees them (gate.py);
-- it restarts the observer on a failure (an exception, a non-finite or implausible
-  estimate) and never lets a non-finite value out;
+- it restarts the observer on a failure (a non-finite or implausible estimate) and never
+  lets a non-finite value out;
 - it counts everything with its reason and builds the outputs and the diagnostics,
   whose level describes the recent past (health.py).
+
+The per-sample work is compiled (loop.py: the checks, the timeline, the gate, the
+observer's kernel, the counters, in one call per block); this class is the Python side:
+message values to arrays, the Output of one sample, counters by name, /diagnostics.
 
 ROS-free.
 """
@@ -29,11 +34,12 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..core.errors import ConfigError
-from ..observers.base import Observer, SampleRejected, check_vector
+from ..core.reasons import CODE, REJECTIONS, RESTART_CODE, RESTARTS, REQUESTED
+from ..observers.base import KernelObserver, Observer, check_vector
+from . import gate as G
+from . import loop as L
 from . import settings as S
-from .gate import OutlierGate, channel_limits, exceeds
 from .health import FAILURES, HealthWindow
-from .timeline import CONFIRM, HOLD, REJECT, STEP, Held, classify
 
 OK, WARN, ERROR = 0, 1, 2
 LEVEL_NAMES = {OK: "OK", WARN: "WARN", ERROR: "ERROR"}
@@ -46,13 +52,13 @@ def convergence_fields(obs: Observer) -> tuple[str, ...]:
     """The labels of ``obs``'s ``convergence`` values: the common ones, then its own."""
     return CONVERGENCE_FIELDS + tuple(obs.CONVERGENCE_EXTRA)
 
+
 #: stamps must fit a builtin_interfaces/Time (int32 seconds) and not be negative
-MAX_STAMP = float(2 ** 31)
+MAX_STAMP = L.MAX_STAMP
 #: what ``process`` returns for a sample held at a time discontinuity (not a rejection:
 #: it is used once the next sample confirms the jump)
 HELD = "held_at_time_jump"
-#: inputs kept while a sample is held (replayed when the next sample confirms the jump)
-MAX_HELD_INPUTS = 10000
+MAX_HELD_INPUTS = L.MAX_HELD_INPUTS
 
 
 @dataclass
@@ -73,42 +79,132 @@ class Status:
     values: list[tuple[str, str]]
 
 
+@dataclass
+class Block:
+    """The outputs of ``process_block``: per event (and joint) a status (``loop.OUTPUT``,
+    ``loop.INPUT_TAKEN``, ``loop.HELD`` or a rejection code, see ``reason``) and, where it is
+    OUTPUT, the estimate, the unknown-input estimate and the convergence values."""
+    status: np.ndarray               # (K, J) int16
+    estimate: np.ndarray             # (K, J, n)
+    unknown_input: np.ndarray        # (K, J, r)
+    convergence: np.ndarray          # (K, J, len(convergence_fields))
+
+
+def reason(status: int) -> str | None:
+    """The rejection reason of a block status (None: an output or a taken input; HELD)."""
+    if status == L.HELD:
+        return HELD
+    return REJECTIONS[status] if status > 0 else None
+
+
 class Runner:
-    """Validates samples, drives one observer, builds outputs and diagnostics."""
+    """Validates samples, drives one observer (a compiled kernel), builds outputs and
+    diagnostics.  Observer families not yet compiled run on the previous runner
+    (runner/legacy.py) behind the same interface."""
+
+    def __new__(cls, flat_params: Mapping[str, Any]):
+        settings, obs_class, obs_config = S.split(flat_params)
+        if cls is Runner and not issubclass(obs_class, KernelObserver):
+            from .legacy import LegacyRunner
+            return LegacyRunner(flat_params)
+        self = super().__new__(cls)
+        self._split = (settings, obs_class, obs_config)
+        return self
 
     def __init__(self, flat_params: Mapping[str, Any]):
-        self.settings, self.observer_class, self.observer_config = S.split(flat_params)
-        self.observer: Observer = self.observer_class(self.observer_config)
+        self.settings, self.observer_class, self.observer_config = self._split
+        del self._split
+        self.observer: KernelObserver = self.observer_class(self.observer_config)
         obs = self.observer
         S.check_settings(self.settings, obs.n_states, obs.n_outputs, obs.n_inputs)
-        self.accepted = 0
-        self.rejected: Counter[str] = Counter()
-        self.resets: Counter[str] = Counter()
-        self.rebases = 0
         self._update_us: deque[float] = deque(maxlen=2000)
         self._health = HealthWindow(self.settings["diagnostics.window"])
+        self._extra: Counter[str] = Counter()      # rejections the caller names (not coded)
+        self._last_extra: str | None = None
         self._window_start: float | None = None
-        self._window_accepted = 0
-        self._u: np.ndarray | None = self._no_input()
-        self._t_input: float | None = None
-        self._t_last: float | None = None
-        self._t0: float | None = None
-        self._held: Held | None = None
-        self._start_from: np.ndarray | None = None     # ~/set_state: the next start's estimate
-        self._last_output: Output | None = None
-        self.last_rejection: str | None = None
         self.last_error: str | None = None
-        self._configure()
+        self._configure(None)
 
-    def _configure(self) -> None:
-        """Everything derived from the settings and the observer's dimensions."""
+    # -- the compiled runner's arrays ------------------------------------------------------
+    def _configure(self, old: "Runner | None") -> None:
+        """The layout, the settings array and the runner state for the current observer and
+        settings (keeping the counters, the input and a held sample of ``old``)."""
         s, obs = self.settings, self.observer
-        self._y_limits = channel_limits(s["limits.measurement"], obs.n_outputs, "limits.measurement")
-        self._u_limits = channel_limits(s["limits.input"], obs.n_inputs, "limits.input") \
-            if obs.n_inputs else np.zeros(0)
-        self._gate = OutlierGate(s, obs.n_outputs)
+        n, p, m = obs.n_states, obs.n_outputs, obs.n_inputs
+        self._r = r = int(obs._ic[obs._K.N_UI])
+        self._nconv = len(convergence_fields(obs))
+        confirm = s["outlier.confirm"]
+        ylim = G.channel_limits(s["limits.measurement"], p, "limits.measurement")
+        ulim = G.channel_limits(s["limits.input"], m, "limits.input") if m else np.zeros(0)
+        floor = G.channel_limits(s["outlier.min_scale"], p, "outlier.min_scale")
+        x0 = s["observer.initial_estimate"]
+        init = np.asarray(x0, dtype=float) if x0 else np.zeros(n)
+        cfg = np.zeros(L.CFG_SCALARS)
+        cfg[L.C_TIMEOUT] = s["input.timeout"]
+        cfg[L.C_MAX_GAP] = s["time.max_gap"]
+        cfg[L.C_RESET_ON_JUMP] = float(s["time.reset_on_jump"])
+        cfg[L.C_JUMP] = s["time.jump_threshold"]
+        cfg[L.C_LIM_EST] = s["limits.estimate"]
+        cfg[L.C_RES_THR] = s["convergence.residual_threshold"]
+        cfg[L.C_G_THRESH] = s["outlier.threshold"]
+        cfg[L.C_G_ALPHA] = 1.0 / s["outlier.window"]
+        cfg[L.C_G_MINHIST] = max(2, s["outlier.window"] // 4)
+        cfg[L.C_G_MAXCONS] = s["outlier.max_consecutive"]
+        cfg[L.C_HAS_INIT] = 1.0 if x0 else 0.0
+        rl = np.zeros(16, dtype=np.int64)
+        rl[L.L_N], rl[L.L_P], rl[L.L_M], rl[L.L_R], rl[L.L_NCONV] = n, p, m, r, self._nconv
+        rl[L.L_CONFIRM] = confirm
+        off = L.RS_SCALARS
+        for key, width in ((L.L_U, m), (L.L_HELD_Y, p), (L.L_HELD_U, m), (L.L_X0, n),
+                           (L.L_GATE, G.size(p, confirm)), (L.L_E, p)):
+            rl[key] = off
+            off += width
+        width = off
+        parts = [cfg]
+        off = L.CFG_SCALARS
+        for key, arr in ((L.L_YLIM, ylim), (L.L_ULIM, ulim), (L.L_FLOOR, floor), (L.L_INIT, init)):
+            rl[key] = off
+            off += arr.size
+            parts.append(arr)
+        self._cfg = np.concatenate(parts)
+        self._rl = rl
+        self._gate_args = (p, s["outlier.threshold"], int(cfg[L.C_G_MINHIST]))
+        rs, rc, rh = L.new_state(1, rl, width, MAX_HELD_INPUTS * (1 + m))
+        if old is not None:
+            o = old._rs[0]
+            for k in (L.T_INPUT, L.U_OK, L.HELD_ON, L.HELD_T, L.HELD_TINPUT, L.HELD_UOK,
+                      L.HELD_KIND, L.HELD_N, L.ACCEPTED, L.REBASES, L.WIN_ACCEPTED, L.LAST_REJ,
+                      L.HAS_OUT, L.LAST_RES, L.LAST_CONV, L.LAST_SINCE, L.LAST_GT):
+                rs[0, k] = o[k]
+            orl = old._rl
+            rs[0, rl[L.L_U]:rl[L.L_U] + m] = o[orl[L.L_U]:orl[L.L_U] + m]
+            rs[0, rl[L.L_HELD_Y]:rl[L.L_HELD_Y] + p] = o[orl[L.L_HELD_Y]:orl[L.L_HELD_Y] + p]
+            rs[0, rl[L.L_HELD_U]:rl[L.L_HELD_U] + m] = o[orl[L.L_HELD_U]:orl[L.L_HELD_U] + m]
+            rc[:] = old._rc
+            rh[:] = old._rh
+        self._rs, self._rc, self._rh = rs, rc, rh
+        # the observer's arrays as rows of the (one-joint) arrays the block loop takes
+        kernels, models, st, nx, c, ic, wk, clk = obs.program()
+        self._prog = (kernels, models) + tuple(a.reshape(1, -1) for a in (st, nx, c, ic, wk, clk))
         self._js = self._joint_state_mapping()
         self._health.window = s["diagnostics.window"]
+        self._one = self._events(1)
+
+    def _events(self, count: int):
+        """Event buffers and output arrays for ``count`` events of one joint."""
+        v = max(self.observer.n_outputs, self.observer.n_inputs, 1)
+        return (np.zeros(count, np.int8), np.zeros(count), np.zeros((count, 1, v)),
+                np.zeros((count, 1), np.int16), np.zeros((count, 1), np.int16),
+                np.zeros((count, 1, self.observer.n_states)), np.zeros((count, 1, self._r)),
+                np.zeros((count, 1, self._nconv)))
+
+    def _run(self, ev) -> None:
+        start = time.perf_counter()
+        L.run_block(*self._prog, self._rs, self._rl, self._rc, self._rh, self._cfg, *ev)
+        count = ev[1].shape[0]
+        if count:
+            us = (time.perf_counter() - start) * 1e6 / count
+            self._update_us.append(us)
 
     # -- configuration ------------------------------------------------------
     @property
@@ -129,222 +225,173 @@ class Runner:
         new = Runner(flat_params)
         if new.observer_type != self.observer_type:
             raise ConfigError("observer.type", "cannot be changed at run time; restart the node")
+        old = self._snapshot()
         self.settings, self.observer_config, self.observer = new.settings, new.observer_config, new.observer
-        self._configure()
+        self._configure(old)
         self.reset("reconfigure")
 
-    # -- inputs -------------------------------------------------------------
+    def _snapshot(self) -> "Runner":
+        """The arrays ``_configure`` carries over (a shallow stand-in)."""
+        snap = object.__new__(Runner)
+        snap._rs, snap._rl, snap._rc, snap._rh = self._rs, self._rl, self._rc, self._rh
+        return snap
+
+    # -- samples ----------------------------------------------------------------------
     def set_input(self, t: float, u) -> str | None:
         """Store the known input u valid from time t on.  Returns a rejection reason or None."""
-        obs = self.observer
-        reason = check_vector(u, obs.n_inputs, "input")
-        if reason is None and exceeds(u, self._u_limits):
-            reason = "input_implausible"
-        if reason is None and not (0.0 <= t < MAX_STAMP):
-            reason = "input_bad_stamp"
-        if reason is not None:
-            self._reject(reason)
-            return reason
-        self._u = np.array(u, dtype=float)
-        self._t_input = t
-        if self._held is not None and len(self._held.inputs) < MAX_HELD_INPUTS:
-            self._held.inputs.append((t, self._u))
-        # observers that predict between sparse measurements (single_delay, sampled form)
-        # integrate up to each input change, so a fast input is applied when it changes;
-        # only within a step they can bridge (a longer silence is a gap: restart later)
-        advance = getattr(obs, "advance", None)
-        if advance is not None and self._t0 is not None and self._t_last is not None \
-                and 0.0 <= t - self._t_last <= self._step_limit():
-            try:
-                advance(t, self._u)
-            except SampleRejected as exc:
-                self._reject(exc.reason)
-                return exc.reason
-            except Exception as exc:  # noqa: BLE001  as in process(): restart, never a traceback
-                return self._fail("observer_error", "observer_error", exc)
-        return None
-
-    # -- measurements ------------------------------------------------------------
-    def _step_limit(self) -> float:
-        return min(self.settings["time.max_gap"], self.observer.max_step)
+        bad = check_vector(u, self.observer.n_inputs, "input")
+        if bad is not None:
+            self.reject(bad)
+            return bad
+        kind, ts, vals, pre, status = self._one[:5]
+        kind[0] = L.INPUT
+        ts[0] = t
+        vals[0, 0, :self.observer.n_inputs] = u
+        self._run(self._one)
+        return reason(int(status[0, 0]))
 
     def process(self, t: float, y) -> Output | str:
         """Feed the measurement y taken at t.  Returns the Output, or why there is none:
         a rejection reason (counted), or ``HELD`` (held at a time discontinuity until the
         next sample confirms it)."""
         obs = self.observer
-        reason = check_vector(y, obs.n_outputs, "measurement")
-        if reason is None and exceeds(y, self._y_limits):
-            reason = "measurement_implausible"
-        if reason is None and not (0.0 <= t < MAX_STAMP):
-            reason = "bad_stamp"
-        if reason is not None:
-            self._reject(reason)
-            return reason
-        s = self.settings
-        verdict, detail = classify(t, self._t_last, self._held, self._step_limit(),
-                                   s["time.jump_threshold"], s["time.reset_on_jump"])
-        if verdict == REJECT:
-            self._reject(detail)
-            return detail
-        if verdict == HOLD:
-            if self._held is not None:
-                self._reject("stamp_jump_unconfirmed")
-            self._held = Held(t, list(y), self._u, self._t_input, detail)
-            return HELD
-        if verdict == CONFIRM:
-            held, self._held = self._held, None
-            self.reset(held.kind)
-            # the held sample starts the new run with the input that was current then, unless
-            # that input was stamped after it (the old timeline's, before a jump back); the
-            # inputs that came while it was held follow, as they would have
-            fresh = held.t_input is not None and held.t_input <= held.t
-            self._u, self._t_input = (held.u, held.t_input) if fresh else (self._no_input(), None)
-            self._sample(held.t, np.array(held.y, dtype=float))
-            for t_in, u_in in held.inputs:
-                if held.t <= t_in <= t:
-                    self.set_input(t_in, u_in)
-        elif self._held is not None:                 # the old timeline goes on: it was junk
-            self._held = None
-            self._reject("stamp_jump_unconfirmed")
-        if verdict == STEP:
-            outcome = self._gate.check(t, y, self.state_name() == "converged")
-            if outcome == "outlier":
-                self._reject("outlier")
-                return "outlier"
-            if outcome == "rebase":
-                self.rebases += 1
-                self._health.count("rebase")
-        return self._sample(t, np.array(y, dtype=float))
+        bad = check_vector(y, obs.n_outputs, "measurement")
+        if bad is not None:
+            self.reject(bad)
+            return bad
+        ev = self._one
+        kind, ts, vals, pre, status, ox, oui, oconv = ev
+        kind[0] = L.MEASUREMENT
+        ts[0] = t
+        vals[0, 0, :obs.n_outputs] = y
+        self._run(ev)
+        st = int(status[0, 0])
+        if st != L.OUTPUT:
+            return reason(st)
+        return self._output(t, ox[0, 0], oui[0, 0], oconv[0, 0])
 
-    def _sample(self, t: float, y: np.ndarray) -> Output | str:
-        """Hand a classified sample to the observer; the Output or a rejection reason."""
-        obs = self.observer
-        if self._u is None:
-            reason = "missing_input"
-        elif self._t_input is not None and t - self._t_input > self.settings["input.timeout"]:
-            reason = "stale_input"
-        else:
-            reason = None
-        if reason is not None:
-            self._reject(reason)
-            return reason
-        start = time.perf_counter()
-        first = self._t0 is None
-        try:
-            if first:
-                x0 = self._start_from if self._start_from is not None else \
-                    (self.settings["observer.initial_estimate"] or None)
-                obs.reset(t, None if x0 is None else np.array(x0))
-            obs.update_checked(t, y, self._u)
-        except SampleRejected as exc:
-            self._reject(exc.reason)
-            return exc.reason
-        except Exception as exc:  # noqa: BLE001  last line of defence: never a traceback
-            # an observer bug: its state cannot be trusted any more, so restart it
-            return self._fail("observer_error", "observer_error", exc)
-        self._update_us.append((time.perf_counter() - start) * 1e6)
-        if first:
-            self._t0 = t
-        self._t_last = t
-        out, problem = self._build_output(t)
-        if problem is not None:  # never publish a non-finite or absurd estimate
-            return self._fail(*problem)
-        self._gate.accepted(t, y.tolist())
-        self.accepted += 1
-        self._window_accepted += 1
-        self._health.count("accepted")
-        self._last_output = out
-        return out
+    def process_block(self, kind: np.ndarray, t: np.ndarray, values: np.ndarray,
+                      refused: np.ndarray | None = None) -> Block:
+        """Many events at once, in time order: ``kind[k]`` (loop.MEASUREMENT, loop.INPUT,
+        loop.REFUSED), ``t[k]``, ``values[k]`` (y or u: ``(K, width)`` or ``(K, 1, width)``)
+        and ``refused[k]`` (the intake's rejection code of a REFUSED event, else 0).  The same
+        outputs, rejections and restarts as the events one by one through ``process`` and
+        ``set_input``."""
+        count = len(t)
+        kind = np.ascontiguousarray(kind, dtype=np.int8)
+        t = np.ascontiguousarray(t, dtype=float)
+        values = np.asarray(values, dtype=float)
+        if values.ndim == 2:
+            values = values[:, None, :]
+        width = max(self.observer.n_outputs, self.observer.n_inputs, 1)
+        if values.shape[2] < width:
+            values = np.concatenate((values, np.zeros((count, 1, width - values.shape[2]))), axis=2)
+        values = np.ascontiguousarray(values)
+        pre = np.zeros((count, 1), np.int16) if refused is None else \
+            np.ascontiguousarray(np.asarray(refused, dtype=np.int16).reshape(count, 1))
+        ev = (kind, t, values, pre) + self._events(count)[4:]
+        self._run(ev)
+        return Block(ev[4], ev[5], ev[6], ev[7])
+
+    def _output(self, t, x, ui, conv) -> Output:
+        x = x.copy()
+        js = None
+        if self._js is not None:
+            names, idx = self._js
+            js = (names,) + tuple([float(x[i]) for i in ix] if ix is not None else [] for ix in idx)
+        return Output(t, x, ui.copy() if self.observer.unknown_input is not None else None,
+                      conv.copy(), js)
 
     @property
     def last_sample_time(self) -> float | None:
         """Time of the last accepted measurement since the last restart (None right after one)."""
-        return self._t_last
+        v = self._rs[0, L.T_LAST]
+        return None if math.isnan(v) else float(v)
 
     def time_jump(self, t: float) -> None:
         """Time went back to t (bag loop, sim time reset, told by the node's clock): restart
         at once, and forget an input stamped after t, which belongs to the old timeline."""
-        self._held = None
-        self.reset("time_jump")
-        if self._t_input is not None and self._t_input > t:
-            self._u, self._t_input = self._no_input(), None
-
-    def _no_input(self) -> np.ndarray | None:
-        """The input before any arrived: none needed (empty) or missing (None)."""
-        return np.zeros(0) if self.observer.n_inputs == 0 else None
+        L.time_jump(self._rs[0], self._rc[0], self._rl, float(t), RESTART_CODE["time_jump"])
 
     def set_state(self, x) -> str | None:
         """Restart the observer from the estimate x (plant coordinates) at the next sample:
         the node's ``~/set_state``.  None when taken, else why not (length, non-finite,
         beyond ``limits.estimate``); counted as the restart ``set_state``."""
         n = self.observer.n_states
-        reason = check_vector(x, n, "state")
-        if reason is None and any(abs(v) > self.settings["limits.estimate"] for v in x):
-            reason = "state_implausible"
-        if reason is not None:
-            return reason
-        self._start_from = np.array(x, dtype=float)
-        self.reset("set_state")
+        bad = check_vector(x, n, "state")
+        if bad is None and any(abs(v) > self.settings["limits.estimate"] for v in x):
+            bad = "state_implausible"
+        if bad is not None:
+            return bad
+        L.set_state(self._rs[0], self._rc[0], self._rl, np.asarray(x, dtype=float))
+        self._requested()
         return None
 
-    def reset(self, reason: str = "service") -> None:
-        """Restart the observer at the next sample (counted under ``reason``).  A reset
+    def reset(self, reason_: str = "service") -> None:
+        """Restart the observer at the next sample (counted under ``reason_``).  A reset
         requested by a person (``service``, ``enable``, ``reconfigure``, ``set_state``) also
         clears the health window: the diagnostics level starts afresh."""
-        self.resets[reason] += 1
-        self._t0 = None
-        self._t_last = None
-        self._gate.clear()
-        if reason != "set_state":
-            self._start_from = None
-        if reason in ("service", "enable", "reconfigure", "set_state"):
-            self._health.clear()
-            self.last_error = None
+        requested = reason_ in REQUESTED
+        L.reset(self._rs[0], self._rc[0], self._rl, RESTART_CODE[reason_], requested)
+        if requested:
+            self._requested()
+
+    def _requested(self) -> None:
+        self._rc[0, L.HW:] = 0
+        self._health.clear()
+        self.last_error = None
+
+    def reject(self, reason_: str) -> None:
+        """Count a sample the caller refused before it reached the runner (e.g. a
+        JointState without the configured joint, a future stamp)."""
+        code = CODE.get(reason_)
+        if code is None:
+            self._extra[reason_] += 1
+            self._rc[0, L.HW_REJECTED] += 1
+            self._last_extra = reason_
+            self._rs[0, L.LAST_REJ] = -1.0
         else:
-            self._health.count(reason)
+            L.reject(self._rs[0], self._rc[0], code)
 
-    def _fail(self, restart: str, rejection: str, exc: BaseException | None = None) -> str:
-        """The observer failed on a sample: restart it, count the sample; the rejection."""
-        self.reset(restart)
-        if exc is not None:
-            self.last_error = f"{type(exc).__name__}: {' '.join(str(exc).split())[:200]}"
-        self._reject(rejection)
-        return rejection
+    # -- counters by name -----------------------------------------------------------------
+    @property
+    def accepted(self) -> int:
+        return int(self._rs[0, L.ACCEPTED])
 
-    # -- outputs ------------------------------------------------------------
-    def _build_output(self, t: float) -> tuple[Output | None, tuple[str, str] | None]:
-        """(Output, None), or (None, (restart reason, rejection reason)) when the estimate
-        is not finite or beyond ``limits.estimate``."""
-        obs = self.observer
-        x = np.array(obs.estimate, dtype=float)
-        ui = obs.unknown_input
-        ui = None if ui is None else np.array(ui, dtype=float)
-        # the largest |value|: NaN anywhere makes it NaN, Inf makes it Inf (one pass each)
-        big = max(map(abs, x.tolist()), default=0.0) if x.size else 0.0
-        if ui is not None and ui.size:
-            big = max(big, max(map(abs, ui.tolist())))
-        if not math.isfinite(big) or math.isnan(x.sum()) or (ui is not None and math.isnan(ui.sum())):
-            return None, ("non_finite_state", "non_finite_estimate")
-        if big > self.settings["limits.estimate"]:
-            return None, ("estimate_implausible", "estimate_implausible")
-        since = t - self._t0
-        gt = obs.guaranteed_time
-        res = obs.output_residual
-        thr = self.settings["convergence.residual_threshold"]
-        converged = obs.converged
-        if converged is None:
-            # without a guarantee (asymptotic observers) only the residual can say it
-            converged = since >= gt - 1e-9 if math.isfinite(gt) else \
-                (math.isfinite(res) and res <= thr)
-        health = obs.health
-        conv = np.array([since, res if math.isfinite(res) else -1.0, float(converged), gt,
-                         health if math.isfinite(health) else 0.0, *obs.convergence_extra()])
-        js = None
-        if self._js is not None:
-            names, idx = self._js
-            js = (names,) + tuple([float(x[i]) for i in ix] if ix is not None else [] for ix in idx)
-        return Output(t, x, ui, conv, js), None
+    @property
+    def rebases(self) -> int:
+        return int(self._rs[0, L.REBASES])
+
+    @property
+    def rejected(self) -> Counter:
+        out = Counter({REJECTIONS[i]: int(v) for i, v in enumerate(self._rc[0, :L.NREJ]) if v})
+        out.update(self._extra)
+        return out
+
+    @property
+    def resets(self) -> Counter:
+        return Counter({RESTARTS[i]: int(v)
+                        for i, v in enumerate(self._rc[0, L.NREJ:L.NREJ + L.NRST]) if v})
+
+    @property
+    def last_rejection(self) -> str | None:
+        code = int(self._rs[0, L.LAST_REJ])
+        if code < 0:
+            return self._last_extra
+        return REJECTIONS[code] if code > 0 else None
+
+    def _take_health(self) -> None:
+        """Move the compiled loop's health bucket into the health window."""
+        row = self._rc[0]
+        for name_, idx in (("accepted", L.HW_ACCEPTED), ("rejected", L.HW_REJECTED),
+                           ("rebase", L.HW_REBASE)):
+            if row[idx]:
+                self._health.count(name_, int(row[idx]))
+        for i, name_ in enumerate(RESTARTS):
+            v = row[L.HW_RESTARTS + i]
+            if v:
+                self._health.count(name_, int(v))
+        row[L.HW:] = 0
 
     def _joint_state_mapping(self):
         names = self.settings["estimated_joint_states.joint_names"]
@@ -366,51 +413,63 @@ class Runner:
     # -- diagnostics --------------------------------------------------------
     def state_name(self) -> str:
         """'waiting', 'converging', 'converged' or 'diverging'."""
-        out = self._last_output
-        if out is None or self._t0 is None:
+        rs = self._rs[0]
+        if rs[L.HAS_OUT] == 0.0 or math.isnan(rs[L.T0]):
             return "waiting"
-        res, converged = out.convergence[1], out.convergence[2]
-        if not converged:
+        if not rs[L.LAST_CONV]:
             return "converging"
-        if res > self.settings["convergence.residual_threshold"]:
+        if rs[L.LAST_RES] > self.settings["convergence.residual_threshold"]:
             return "diverging"
         return "converged"
 
     def update_time_us(self) -> tuple[float, float]:
-        """(p50, p99) of the recent update times in microseconds (nan before any)."""
+        """(p50, p99) of the recent per-sample processing times in microseconds (a block's
+        time divided by its events; nan before any)."""
         if not self._update_us:
             return float("nan"), float("nan")
         a = np.fromiter(self._update_us, float)
         return float(np.percentile(a, 50)), float(np.percentile(a, 99))
 
+    def _last_convergence(self) -> tuple[float, float, float] | None:
+        """(time since start, guaranteed time, residual) of the last output, if any."""
+        rs = self._rs[0]
+        if rs[L.HAS_OUT] == 0.0:
+            return None
+        return float(rs[L.LAST_SINCE]), float(rs[L.LAST_GT]), float(rs[L.LAST_RES])
+
     def status(self, now: float | None = None) -> Status:
         """The diagnostics status; the level from the last ``diagnostics.window`` seconds
         of ``now`` (the caller's clock: node ROS time, replay sample time), see health.py."""
         obs, s = self.observer, self.settings
+        self._take_health()
         state = self.state_name()
-        out = self._last_output
         recent = self._health.close(now)
+        rs = self._rs[0]
         values: list[tuple[str, str]] = [("observer", obs.TYPE), ("state", state)]
         level, problems = OK, []
-        if out is not None:
-            values += [("time since start (s)", f"{out.convergence[0]:.4f}"),
+        last = self._last_convergence()
+        if last is not None:
+            since, gt, res = last
+            values += [("time since start (s)", f"{since:.4f}"),
                        ("guaranteed convergence time (s)",
-                        "none" if math.isinf(out.convergence[3]) else f"{out.convergence[3]:.4g}"),
-                       ("output residual", f"{out.convergence[1]:.4g}")]
+                        "none" if math.isinf(gt) else f"{gt:.4g}"),
+                       ("output residual", f"{res:.4g}")]
         values += [("samples accepted", str(self.accepted)),
                    ("samples rejected", str(sum(self.rejected.values())))]
         values += [(f"rejected: {k}", str(v)) for k, v in sorted(self.rejected.items())]
         values += [(f"restarts: {k}", str(v)) for k, v in sorted(self.resets.items())]
-        values.append(("outlier gate", self._gate.summary()
-                       + (f"; re-based {self.rebases} time(s)" if self.rebases else "")))
+        gate = G.summary(rs[self._rl[L.L_GATE]:], *self._gate_args)
+        values.append(("outlier gate", gate + (f"; re-based {self.rebases} time(s)" if self.rebases else "")))
         if obs.n_inputs:
-            age = (now - self._t_input) if (now is not None and self._t_input is not None) else None
-            values.append(("input age (s)", "never received" if self._t_input is None else
+            t_in = rs[L.T_INPUT]
+            age = (now - t_in) if (now is not None and not math.isnan(t_in)) else None
+            values.append(("input age (s)", "never received" if math.isnan(t_in) else
                            (f"{age:.4f}" if age is not None else "n/a")))
         p50, p99 = self.update_time_us()
         values.append(("update time p50/p99 (us)", f"{p50:.1f} / {p99:.1f}"))
+        win = rs[L.WIN_ACCEPTED]
         if now is not None and self._window_start is not None and now > self._window_start:
-            rate = self._window_accepted / (now - self._window_start)
+            rate = win / (now - self._window_start)
             values.append(("measurement rate (Hz)", f"{rate:.1f}"))
             exp = s["diagnostics.expected_rate"]
             if exp > 0:
@@ -447,17 +506,6 @@ class Runner:
             problems.append(f"the observer failed (non-finite or implausible values, or an internal "
                             f"error) and was restarted in the {window}")
         self._window_start = now
-        self._window_accepted = 0
+        rs[L.WIN_ACCEPTED] = 0.0
         message = state if not problems else f"{state}: " + "; ".join(problems)
         return Status(level, message, values)
-
-    # -- helpers ------------------------------------------------------------
-    def reject(self, reason: str) -> None:
-        """Count a sample the caller refused before it reached the runner (e.g. a
-        JointState without the configured joint, a future stamp)."""
-        self._reject(reason)
-
-    def _reject(self, reason: str) -> None:
-        self.rejected[reason] += 1
-        self._health.count("rejected")
-        self.last_rejection = reason

@@ -15,16 +15,20 @@ from __future__ import annotations
 import numpy as np
 from scipy.linalg import solve_continuous_are
 
-from ..core.discretize import ExactStepper
-from ..core.expressions import VectorFunction
-from ..core.linear import observability_rank, place_observer_poles
-from .base import ConfigError, Observer, Param, SampleRejected, matrix
+from ...core.expressions import VectorFunction
+from ...core.linear import observability_rank, place_observer_poles
+from ...core.model_code import ModelFunction
+from ...core.step_cache import cache_floats, cache_init
+from .. import kernel as K
+from ..base import ConfigError, KernelObserver, Param, matrix
+from . import kernel
 
 P = "luenberger."
 
 
-class LuenbergerObserver(Observer):
+class LuenbergerObserver(KernelObserver):
     TYPE = "luenberger"
+    KERNEL = kernel
     DESCRIPTION = "Luenberger / steady-state Kalman baseline (asymptotic convergence only)"
     HEALTH_NAME = "slowest observer pole (1/s)"
     PARAMS = (
@@ -80,46 +84,25 @@ class LuenbergerObserver(Observer):
         if np.max(eig.real) >= 0:
             raise ConfigError(P + "design", f"A - L C is not Hurwitz (eigenvalues {eig})")
         self.closed_loop_poles = eig
-        # w = [u; F(y, u); y]
-        self.stepper = ExactStepper(Acl, np.hstack([B, np.eye(n), L]))
         self.foh_input = cfg["input_hold"] == "foh"
         self.state_names = cfg["state_names"] or [f"x{i}" for i in range(n)]
         if len(self.state_names) != n:
             raise ConfigError(P + "state_names", f"expected {n} names, got {len(self.state_names)}")
-        self._x = np.zeros(n)
-        self._y = self._u = None
-        self._residual = float("nan")
+        self._build(Acl, np.hstack([B, np.eye(n), L]))
 
-    # -- protocol ---------------------------------------------------------
-    def _restart(self, x0_hat):
-        self._x = np.zeros(self.n_states) if x0_hat is None else x0_hat.copy()
-
-    def _first(self, y, u, gap):
-        if not np.all(np.isfinite(self.F(y, u))):
-            # the first sample's model term is the next step's starting point
-            raise SampleRejected("non_finite_model_term")
-        self._commit(self._x, y, u)
-
-    def _step(self, s, h, y, u):
-        u_end = u if self.foh_input else self._u
-        w0 = np.concatenate((self._u, self.F(self._y, self._u), self._y))
-        w1 = np.concatenate((u_end, self.F(y, u_end), y))
-        x = self.stepper.step(self._x, w0, w1, h)
-        if not np.all(np.isfinite(x)):
-            raise SampleRejected("non_finite_estimate")
-        self._commit(x, y, u)
-
-    def _commit(self, x, y, u):
-        self._x, self._y, self._u = x, y, u
-        self._residual = float(np.linalg.norm(y - self.C @ x))
-
-    @property
-    def estimate(self):
-        return self._x
-
-    @property
-    def health(self):
-        return float(np.max(self.closed_loop_poles.real))
+    def _build(self, Acl: np.ndarray, Bw: np.ndarray) -> None:
+        """The kernel's arrays (observers/luenberger/kernel.py has the layout)."""
+        n, p, m = self.n_states, self.n_outputs, self.n_inputs
+        w = m + n + p
+        slots = 256
+        c = np.concatenate(([np.inf], Acl.ravel(), Bw.ravel(), self.C.ravel()))
+        cache = cache_floats(slots, n * (n + 2 * w))
+        wk = np.zeros(cache + 2 * (n + 2 * w) + n + 2 * p)
+        cache_init(wk, 0, slots)
+        ic = K.layout_ic(n, K.HEADER, extra_ints=(n, p, m, int(self.foh_input), 0, slots, cache))
+        model = ModelFunction(self.F.exprs, [[], self.F.y_syms, self.F.u_syms])
+        self._build_kernel(c, ic, wk, K.HEADER + n + p + m, models=(model,))
+        self._st[K.HEALTH] = float(np.max(self.closed_loop_poles.real))
 
     def diagnostics(self):
         return {

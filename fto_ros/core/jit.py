@@ -1,0 +1,185 @@
+"""Compiled per-sample code: numba when it is there, the same functions as numpy otherwise.
+
+Every per-sample function of the package (an observer's kernel, the runner's checks, the
+block loop) is written once, in the subset of Python and numpy that numba compiles, and
+decorated here:
+
+- ``@jit`` for helpers and loops: ``numba.njit`` (compiled at the first call for the
+  argument types it sees, ``nogil``, numpy's error model: a division by zero gives inf or
+  nan, which the callers check, instead of raising); the plain function when numba is
+  off.  ``@jit(pure=other)`` gives the numpy path a vectorised twin of a scalar loop
+  (same result up to the order of a sum).
+- ``kernel(fn, SIGNATURE)``: a per-sample kernel the block loop calls through a function
+  pointer (numba's first-class function type), so ONE compiled loop serves every observer
+  family and its compiled code is cached on disk: a loop specialised per callee could not be
+  cached (numba caches no function that takes a dispatcher or a closure).
+
+Compiled code is cached beside the sources where the install is writable, else in numba's
+per-user cache directory; where neither is, everything still works and compiles at every
+start (the log line says so).  ``FTO_ROS_NUMBA=0`` in the environment turns numba off: the
+pure numpy path, which the tests run against the compiled one.
+
+ROS-free; imports numba lazily, only here.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+
+import numpy as np
+
+LOG = logging.getLogger("fto_ros.jit")
+
+#: numba is used: installed and not turned off with FTO_ROS_NUMBA=0
+ENABLED = False
+numba = None
+if os.environ.get("FTO_ROS_NUMBA", "1").strip().lower() not in ("0", "false", "off", "no"):
+    try:
+        import numba  # noqa: F811
+        ENABLED = True
+    except ImportError:          # pragma: no cover - exercised by the FTO_ROS_NUMBA=0 runs
+        numba = None
+
+#: whether compiled code is cached on disk (False where no cache directory is writable)
+CACHING = ENABLED
+_OPTIONS = dict(nogil=True, error_model="numpy", boundscheck=False)
+_lock = threading.Lock()
+
+
+def _njit(fn, signature=None, nogil=True):
+    global CACHING
+    options = dict(_OPTIONS, nogil=nogil)
+    deco = numba.njit(signature, cache=CACHING, **options) if signature is not None else \
+        numba.njit(cache=CACHING, **options)
+    try:
+        return deco(fn)
+    except RuntimeError as exc:                  # "cannot cache ... no locator available"
+        if "cach" not in str(exc).lower():
+            raise
+        CACHING = False
+        LOG.warning("no writable cache directory for compiled code (%s): compiling at every "
+                    "start", exc)
+        return _njit(fn, signature, nogil)
+
+
+def jit(fn=None, *, pure=None, gil=False):
+    """Compile ``fn`` with numba (lazily, per argument types); without numba, ``pure`` (a
+    numpy twin with the same contract) or ``fn`` itself.  ``gil=True`` for a function that
+    calls back into Python (numba's object mode)."""
+    def wrap(f):
+        if not ENABLED:
+            return pure if pure is not None else f
+        return _njit(f, nogil=not gil)
+    return wrap if fn is None else wrap(fn)
+
+
+# ---------------------------------------------------------------------------------------
+# the signatures of the functions the block loop calls through pointers
+# ---------------------------------------------------------------------------------------
+#: kernel operations (the ``op`` argument of a family's kernel)
+RESTART, FIRST, STEP, ADVANCE = 0, 1, 2, 3
+
+if ENABLED:
+    from numba import types as _t
+    from numba.typed import List as _List
+    A = _t.float64[::1]
+    I = _t.int64[::1]
+    #: a model term compiled from the plant block: out <- g(x, y, u); 0, or 1 if not finite
+    MODEL = _t.int64(A, A, A, A)
+    #: the model terms an observer uses, in the slots its family documents
+    MODELS = _t.ListType(_t.FunctionType(MODEL))
+    #: kernel(op, state, new, consts, iconsts, work, a, b, y, u, models): see observers/kernel.py
+    KERNEL = _t.int64(_t.int64, A, A, A, I, A, _t.float64, _t.float64, A, A, MODELS)
+    KERNELS = _t.ListType(_t.FunctionType(KERNEL))
+    _MODEL_FT, _KERNEL_FT = MODELS.item_type, KERNELS.item_type
+else:
+    A = I = MODEL = MODELS = KERNEL = KERNELS = None
+
+
+#: model slots every kernel gets (unused ones hold the none model)
+MODEL_SLOTS = 4
+
+
+def _models_list(m0, m1, m2, m3):
+    out = _List.empty_list(_MODEL_FT)
+    out.append(m0)
+    out.append(m1)
+    out.append(m2)
+    out.append(m3)
+    return out
+
+
+def _kernels_list(k0):
+    out = _List.empty_list(_KERNEL_FT)
+    out.append(k0)
+    return out
+
+
+_makers = {}
+
+
+def function_list(fns, kind):
+    """The functions ``fns`` as what compiled code takes: a typed list of function pointers
+    (``kind``: MODELS, exactly MODEL_SLOTS of them, or KERNELS, one), passed from Python at the
+    cost of one object (a function object per argument costs tens of microseconds per
+    call).  The list is built by a compiled, cached function: a typed list built from Python
+    compiles its methods afresh in every process.  A plain list without numba."""
+    if not ENABLED:
+        return list(fns)
+    maker = _makers.get(id(kind))
+    if maker is None:
+        item = kind.item_type
+        if kind is MODELS:
+            maker = _njit(_models_list, kind(item, item, item, item))
+        else:
+            maker = _njit(_kernels_list, kind(item))
+        _makers[id(kind)] = maker
+    return maker(*fns)
+
+
+class _Compiled:
+    """What was compiled, and how long it took (for the one start-up log line)."""
+
+    def __init__(self):
+        self.names: list[str] = []
+        self.seconds = 0.0
+
+
+COMPILED = _Compiled()
+
+
+def kernel(fn, signature):
+    """``fn`` compiled for ``signature`` (a first-class function the block loop calls), at the
+    first request: ``kernel(fn, STEP)`` returns the same object every time.  Without numba,
+    ``fn`` itself."""
+    if not ENABLED:
+        return fn
+    key = "_fto_kernel"
+    with _lock:
+        done = getattr(fn, key, None)
+        if done is None:
+            t0 = time.perf_counter()
+            done = _njit(fn, signature)
+            COMPILED.seconds += time.perf_counter() - t0
+            COMPILED.names.append(fn.__module__.rsplit(".", 1)[-1] + "." + fn.__name__)
+            setattr(fn, key, done)
+    return done
+
+
+def compile_report() -> str:
+    """One line: what was compiled (or loaded from the cache) in this process, and how long
+    it took; empty when nothing was."""
+    if not ENABLED:
+        return "numba off (FTO_ROS_NUMBA=0 or not installed): per-sample kernels run as numpy code"
+    if not COMPILED.names:
+        return ""
+    where = "cached on disk" if CACHING else "not cached (no writable cache directory)"
+    return (f"compiled {len(COMPILED.names)} kernel(s) in {COMPILED.seconds:.2f} s ({where}): "
+            + ", ".join(COMPILED.names))
+
+
+def empty(n: int = 0) -> np.ndarray:
+    """A float64 array of n zeros (the placeholder for an unused argument)."""
+    return np.zeros(n)

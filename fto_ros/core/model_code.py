@@ -1,0 +1,151 @@
+"""Model terms as compiled kernels: sympy expressions -> generated source -> numba.
+
+A model term of the plant block (``-a1*sin(q)``, an EKF's f(x, u) and its Jacobian, ...)
+reaches an observer as a :class:`ModelFunction`: the sympy expressions it came from, and
+one function with the kernels' model signature (core/jit.py ``MODEL``)
+
+    fn(x, y, u, out) -> 0, or 1 when a value is not finite
+
+that writes the terms (or a matrix, row-major) into ``out``.  Its source is printed by
+sympy's Python code printer (math functions, common subexpressions eliminated) into a
+module file named by the hash of that source, in a cache directory (``FTO_ROS_CACHE``,
+else ``$XDG_CACHE_HOME/fto_ros``, else ``~/.cache/fto_ros``; a temporary directory where
+none is writable), and imported from there: numba caches compiled code beside a source
+file, so a plant seen before starts without compiling.  The text is generated here from
+expressions the expression parser accepted (a closed vocabulary), and a cached file is
+used only if it holds exactly that text.
+
+ROS-free.
+"""
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import math
+import os
+import sys
+import tempfile
+from pathlib import Path
+from typing import Sequence
+
+import sympy
+from sympy.printing.pycode import PythonCodePrinter
+
+from . import jit as J
+
+_GROUPS = ("x", "y", "u")
+_cache_dir: Path | None = None
+
+
+class _Printer(PythonCodePrinter):
+    """Python with ``math``; numba compiles the same text (sign, min/max, floor as floats)."""
+
+    def _print_sign(self, e):
+        a = self._print(e.args[0])
+        return f"(0.0 if {a} == 0 else math.copysign(1.0, {a}))"
+
+    def _print_floor(self, e):
+        return f"float(math.floor({self._print(e.args[0])}))"
+
+    def _print_ceiling(self, e):
+        return f"float(math.ceil({self._print(e.args[0])}))"
+
+
+def cache_dir() -> Path:
+    """Where generated model modules (and numba's compiled code for them) are kept."""
+    global _cache_dir
+    if _cache_dir is not None:
+        return _cache_dir
+    env = os.environ.get("FTO_ROS_CACHE")
+    base = Path(env) if env else Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "fto_ros"
+    for candidate in (base / "models", Path(tempfile.gettempdir()) / f"fto_ros_models_{os.getuid()}"):
+        try:
+            candidate.mkdir(parents=True, exist_ok=True)
+            probe = candidate / f".probe{os.getpid()}"
+            probe.write_text("")
+            probe.unlink()
+            _cache_dir = candidate
+            return candidate
+        except OSError:
+            continue
+    _cache_dir = Path(tempfile.mkdtemp(prefix="fto_ros_models_"))
+    return _cache_dir
+
+
+def _source(exprs: Sequence[sympy.Expr], groups: Sequence[Sequence[sympy.Symbol]]) -> str:
+    printer = _Printer({"fully_qualified_modules": True, "inline": True, "allow_unknown_functions": False})
+    subs = {}
+    for name, syms in zip(_GROUPS, groups):
+        for i, s in enumerate(syms):
+            subs[s] = sympy.Symbol(f"{name}[{i}]")
+    reps, reduced = sympy.cse([sympy.sympify(e).xreplace(subs) for e in exprs],
+                              symbols=sympy.numbered_symbols("c_"))
+    lines = ["import math", "", "", "def fn(x, y, u, out):"]
+    lines += [f"    {printer.doprint(v)} = {printer.doprint(e)}" for v, e in reps]
+    for i, e in enumerate(reduced):
+        lines.append(f"    out[{i}] = {printer.doprint(e)}")
+    lines += ["    acc = 0.0", f"    for i in range({len(reduced)}):", "        acc += out[i] * 0.0",
+              "    return 0 if acc == 0.0 else 1", ""]
+    return "\n".join(lines)
+
+
+def _load(source: str):
+    digest = hashlib.sha256(source.encode()).hexdigest()[:20]
+    name = f"fto_model_{digest}"
+    if name in sys.modules:
+        return sys.modules[name].fn
+    path = cache_dir() / f"{name}.py"
+    try:
+        if not path.exists() or path.read_text() != source:
+            tmp = path.with_suffix(f".{os.getpid()}.tmp")
+            tmp.write_text(source)
+            os.replace(tmp, path)
+    except OSError:                          # a cache directory that became read-only
+        path = Path(tempfile.mkdtemp(prefix="fto_ros_models_")) / f"{name}.py"
+        path.write_text(source)
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    sys.modules[name] = module
+    return module.fn
+
+
+class ModelFunction:
+    """Compiled model terms: ``fn(x, y, u, out)`` (see the module doc), ``size`` values.
+
+    ``groups`` are the symbols that the expressions may use, read from x, y and u in that
+    order (``[states, outputs, inputs]``; an empty group for an unused argument).
+    ``is_zero``: every term is identically zero (callers may skip the call)."""
+
+    def __init__(self, exprs: Sequence[sympy.Expr], groups: Sequence[Sequence[sympy.Symbol]]):
+        self.exprs = [sympy.sympify(e) for e in exprs]
+        self.groups = [list(g) for g in groups] + [[] for _ in range(3 - len(groups))]
+        self.size = len(self.exprs)
+        self.is_zero = all(e == 0 for e in self.exprs)
+        self.source = _source(self.exprs, self.groups)
+        self._py = _load(self.source)
+        self._kernel = None
+
+    def pure(self, x, y, u, out) -> int:
+        """The numpy path's call: as the compiled one, math's exceptions -> 1 (non-finite)."""
+        try:
+            return self._py(x, y, u, out)
+        except (ValueError, OverflowError, ZeroDivisionError):
+            out[:self.size] = math.nan
+            return 1
+
+    @property
+    def kernel(self):
+        """The function the block loop calls (compiled on first request)."""
+        if self._kernel is None:
+            self._kernel = J.kernel(self._py, J.MODEL) if J.ENABLED else self.pure
+        return self._kernel
+
+
+def _nothing(x, y, u, out):
+    return 0
+
+
+def none_kernel():
+    """The model function of an unused slot."""
+    return J.kernel(_nothing, J.MODEL) if J.ENABLED else _nothing

@@ -1,0 +1,101 @@
+"""Replays of the committed (bag, config) pairs logged call by call, and the reference they
+are compared with (test/data/runner_reference.npz).
+
+The reference was recorded once, before the per-sample work moved into compiled kernels
+(main at d72ec3a, 2026-12-01), by running every pair of fto-report's plan (the DC motor)
+and plan_examples (the papers' systems) through the replay and logging every call the
+replay made into the runner: per pair the status of every call, every STRIDE-th output
+(estimate, unknown-input estimate, convergence values) and the final counters.  A replay
+of today's code is logged the same way (``log_replay``) and compared (``compare``).
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from fto_ros.replay.replay import replay
+from fto_ros.runner import runner as R
+from fto_ros.runner.legacy import LegacyRunner
+
+ROOT = Path(__file__).resolve().parents[1]
+REFERENCE = ROOT / "test" / "data" / "runner_reference.npz"
+
+
+def load_reference():
+    data = np.load(REFERENCE)
+    meta = json.loads(str(data["meta"]))
+    return data, meta
+
+
+def log_replay(bag: Path, params: list[Path]):
+    """(calls, results, runner) of a replay: every set_input / process / reject call."""
+    log: list = []
+    captured = {}
+    patched = []
+    for cls in (R.Runner, LegacyRunner):
+        orig = {k: getattr(cls, k) for k in ("set_input", "process", "reject", "__init__")}
+        patched.append((cls, orig))
+
+        def make(orig):
+            def set_input(self, t, u):
+                r = orig["set_input"](self, t, u)
+                log.append((0, t, list(map(float, u)), r))
+                return r
+
+            def process(self, t, y):
+                r = orig["process"](self, t, y)
+                log.append((1, t, list(map(float, y)), r))
+                return r
+
+            def reject(self, reason):
+                log.append((2, 0.0, [], reason))
+                return orig["reject"](self, reason)
+
+            def init(self, *a, **k):
+                orig["__init__"](self, *a, **k)
+                captured["runner"] = self
+            return set_input, process, reject, init
+        cls.set_input, cls.process, cls.reject, cls.__init__ = make(orig)
+    try:
+        with tempfile.TemporaryDirectory() as d:
+            replay(bag, params, Path(d) / "o", plot=False, progress=False)
+    finally:
+        for cls, orig in patched:
+            for k, v in orig.items():
+                setattr(cls, k, v)
+    return log, captured["runner"]
+
+
+def calls_hash(log) -> str:
+    kinds = np.array([c[0] for c in log], np.int8)
+    ts = np.array([c[1] for c in log])
+    width = max([len(c[2]) for c in log] + [0])
+    vals = np.full((len(log), width), np.nan)
+    for i, c in enumerate(log):
+        vals[i, :len(c[2])] = c[2]
+    return hashlib.sha256(kinds.tobytes() + ts.tobytes()
+                          + np.nan_to_num(vals, nan=1e300).tobytes()).hexdigest()[:16]
+
+
+def outputs(log, stride: int):
+    """(status names per call, every stride-th output's (estimate, ui, convergence))."""
+    status, est, ui, conv = [], [], [], []
+    nout = 0
+    for c in log:
+        r = c[3]
+        if r is None:
+            status.append("")
+        elif isinstance(r, str):
+            status.append(r)
+        else:
+            status.append("output")
+            if nout % stride == 0:
+                est.append(np.asarray(r.estimate, float))
+                conv.append(np.asarray(r.convergence, float))
+                ui.append(np.zeros(0) if r.unknown_input is None else np.asarray(r.unknown_input, float))
+            nout += 1
+    return status, np.array(est), np.array(ui), np.array(conv)
