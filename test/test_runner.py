@@ -16,10 +16,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fto_ros.core import jit
 from fto_ros.core.errors import ConfigError
 from fto_ros.models import dc_motor
 from fto_ros.models.simulate import simulate, uniform_grid
 from fto_ros.runner import CONVERGENCE_FIELDS, ERROR, OK, WARN, Output, Runner, load_params_file
+from fto_ros.observers import kernel as kernel_protocol
+from fto_ros.observers.luenberger import kernel as luenberger_kernel
 from fto_ros.runner.runner import HELD
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -613,17 +616,26 @@ def test_observer_without_input(uniform):
     assert r.set_input(0.1, [1.0]) == "input_wrong_length"
 
 
+_LUENBERGER = jit.kernel(luenberger_kernel.kernel, jit.KERNEL)
+
+
+def _nan_kernel(op, st, nx, c, ic, wk, a, b, y, u, models):
+    """The Luenberger kernel with a bug: from the 101st step on it commits a NaN estimate."""
+    code = _LUENBERGER(op, st, nx, c, ic, wk, a, b, y, u, models)
+    if op == jit.STEP and wk[wk.shape[0] - 1] > 0.0:
+        nx[ic[kernel_protocol.EST] + 1] = math.nan
+    return code
+
+
 def test_observer_letting_nan_through_is_never_published(uniform):
     r = make("luenberger")
     drive(r, uniform, 0, 100)
     obs = r.observer
-    orig = obs.update_checked
-
-    def broken(t, y, u):
-        orig(t, y, u)
-        obs._x = np.array([0.0, NAN, 0.0])
-
-    obs.update_checked = broken
+    broken = jit.function_list([jit.kernel(_nan_kernel, jit.KERNEL)], jit.KERNELS)
+    good = r._prog[0]
+    obs._wk = np.append(obs._wk, 1.0)             # the bug's switch, in the work memory
+    obs._kernels = broken
+    r._bind()
     r.set_input(uniform.t[100], uniform.u[100])
     assert r.process(uniform.t[100], uniform.y[100]) == "non_finite_estimate"
     assert r.rejected == {"non_finite_estimate": 1}
@@ -631,7 +643,8 @@ def test_observer_letting_nan_through_is_never_published(uniform):
     st = r.status(uniform.t[100])
     assert st.level == ERROR
     assert "non-finite" in st.message
-    del obs.update_checked                                    # fixed: restarts at the next sample
+    obs._kernels = good                                       # fixed: restarts at the next sample
+    r._bind()
     out = drive(r, uniform, 101, 110)
     assert out[101].convergence[0] == 0.0
     for o in out.values():

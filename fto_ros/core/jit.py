@@ -14,19 +14,23 @@ decorated here:
   family and its compiled code is cached on disk: a loop specialised per callee could not be
   cached (numba caches no function that takes a dispatcher or a closure).
 
-Compiled code is cached beside the sources where the install is writable, else in numba's
-per-user cache directory; where neither is, everything still works and compiles at every
-start (the log line says so).  ``FTO_ROS_NUMBA=0`` in the environment turns numba off: the
+Compiled code is cached on disk, in a folder per version of the package's sources
+(``$FTO_ROS_CACHE``, else ``$XDG_CACHE_HOME/fto_ros``, else ``~/.cache/fto_ros``;
+``NUMBA_CACHE_DIR`` when the user set it); where no such folder is writable, everything
+still works and compiles at every start (the log line says so).  ``FTO_ROS_NUMBA=0`` in the environment turns numba off: the
 pure numpy path, which the tests run against the compiled one.
 
 ROS-free; imports numba lazily, only here.
 """
 from __future__ import annotations
 
+import hashlib
 import logging
 import os
+import shutil
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -42,8 +46,55 @@ if os.environ.get("FTO_ROS_NUMBA", "1").strip().lower() not in ("0", "false", "o
     except ImportError:          # pragma: no cover - exercised by the FTO_ROS_NUMBA=0 runs
         numba = None
 
+
+def _sources_digest() -> str:
+    """A hash of the package's sources: compiled code is kept per version of them."""
+    root = Path(__file__).resolve().parents[1]
+    h = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        h.update(str(path.relative_to(root)).encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def _cache_root() -> Path | None:
+    """Where numba keeps the compiled code: a folder per version of the sources (numba
+    checks only a function's own file for changes, not the constants it took from other
+    modules, so a cache shared across versions could run stale code).  None: no writable
+    place (compile at every start)."""
+    base = Path(os.environ.get("FTO_ROS_CACHE") or
+                Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "fto_ros")
+    digest = _sources_digest()
+    target = base / "numba" / digest
+    try:
+        target.mkdir(parents=True, exist_ok=True)
+        probe = target / f".probe{os.getpid()}"
+        probe.write_text("")
+        probe.unlink()
+    except OSError:
+        return None
+    # keep the three most recent versions' caches
+    try:
+        others = sorted((p for p in target.parent.iterdir() if p.is_dir() and p != target),
+                        key=lambda p: p.stat().st_mtime)
+        for old in others[:-2]:
+            shutil.rmtree(old, ignore_errors=True)
+    except OSError:
+        pass
+    return target
+
+
+CACHE_DIR: Path | None = None
+if ENABLED:
+    if os.environ.get("NUMBA_CACHE_DIR"):          # the user's choice
+        CACHE_DIR = Path(os.environ["NUMBA_CACHE_DIR"])
+    else:
+        CACHE_DIR = _cache_root()
+        if CACHE_DIR is not None:
+            numba.config.CACHE_DIR = str(CACHE_DIR)
+
 #: whether compiled code is cached on disk (False where no cache directory is writable)
-CACHING = ENABLED
+CACHING = ENABLED and CACHE_DIR is not None
 _OPTIONS = dict(nogil=True, error_model="numpy", boundscheck=False)
 _lock = threading.Lock()
 

@@ -36,7 +36,8 @@ CODE = {name: i for i, name in enumerate(REJECTIONS)}
 
 #: restart reasons, code = index
 RESTARTS = ("service", "enable", "reconfigure", "set_state", "gap", "time_jump",
-            "observer_error", "non_finite_state", "estimate_implausible", "reacquire")
+            "observer_error", "non_finite_state", "estimate_implausible", "reacquire",
+            "other")          # "other": a reason the caller names (counted by name in Python)
 RESTART_CODE = {name: i for i, name in enumerate(RESTARTS)}
 #: restarts a person asked for: they clear the health window
 REQUESTED = ("service", "enable", "reconfigure", "set_state")

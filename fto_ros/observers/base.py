@@ -397,6 +397,17 @@ class KernelObserver(Observer):
                                        J.MODELS)
         self._empty = np.zeros(0)
 
+    #: what a copy shares with the original: compiled functions, model terms, modules
+    _SHARED = ("_kernels", "_models", "models", "_K")
+
+    def __deepcopy__(self, memo):
+        import copy
+        new = object.__new__(type(self))
+        memo[id(self)] = new
+        for k, v in self.__dict__.items():
+            new.__dict__[k] = v if k in self._SHARED else copy.deepcopy(v, memo)
+        return new
+
     # -- the protocol, through the kernel ---------------------------------------------
     def _restart(self, x0_hat):
         has = x0_hat is not None

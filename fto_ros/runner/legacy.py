@@ -23,7 +23,6 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter, deque
-from dataclasses import dataclass
 from typing import Any, Mapping
 
 import numpy as np
@@ -35,42 +34,8 @@ from .legacy_gate import OutlierGate, channel_limits, exceeds
 from .health import FAILURES, HealthWindow
 from .legacy_timeline import CONFIRM, HOLD, REJECT, STEP, Held, classify
 
-OK, WARN, ERROR = 0, 1, 2
-LEVEL_NAMES = {OK: "OK", WARN: "WARN", ERROR: "ERROR"}
-
-#: order of the values on the ``convergence`` topic
-CONVERGENCE_FIELDS = ("time_since_start", "output_residual", "converged", "guaranteed_time", "health")
-
-
-def convergence_fields(obs: Observer) -> tuple[str, ...]:
-    """The labels of ``obs``'s ``convergence`` values: the common ones, then its own."""
-    return CONVERGENCE_FIELDS + tuple(obs.CONVERGENCE_EXTRA)
-
-#: stamps must fit a builtin_interfaces/Time (int32 seconds) and not be negative
-MAX_STAMP = float(2 ** 31)
-#: what ``process`` returns for a sample held at a time discontinuity (not a rejection:
-#: it is used once the next sample confirms the jump)
-HELD = "held_at_time_jump"
-#: inputs kept while a sample is held (replayed when the next sample confirms the jump)
-MAX_HELD_INPUTS = 10000
-
-
-@dataclass
-class Output:
-    """What one accepted sample produces (all finite)."""
-    t: float
-    estimate: np.ndarray
-    unknown_input: np.ndarray | None
-    convergence: np.ndarray          # CONVERGENCE_FIELDS; guaranteed_time may be inf (no guarantee)
-    joint_state: tuple | None        # (names, position, velocity, effort) lists, or None
-
-
-@dataclass
-class Status:
-    """One /diagnostics status: level, a one-line message, key-values a person can read."""
-    level: int
-    message: str
-    values: list[tuple[str, str]]
+from .runner import (CONVERGENCE_FIELDS, ERROR, HELD, LEVEL_NAMES, MAX_HELD_INPUTS, MAX_STAMP,
+                     OK, WARN, Output, Status, convergence_fields)
 
 
 class LegacyRunner:

@@ -102,7 +102,9 @@ class Runner:
     diagnostics.  Observer families not yet compiled run on the previous runner
     (runner/legacy.py) behind the same interface."""
 
-    def __new__(cls, flat_params: Mapping[str, Any]):
+    def __new__(cls, flat_params: Mapping[str, Any] | None = None):
+        if flat_params is None:                     # copy.deepcopy, _snapshot
+            return super().__new__(cls)
         settings, obs_class, obs_config = S.split(flat_params)
         if cls is Runner and not issubclass(obs_class, KernelObserver):
             from .legacy import LegacyRunner
@@ -111,7 +113,9 @@ class Runner:
         self._split = (settings, obs_class, obs_config)
         return self
 
-    def __init__(self, flat_params: Mapping[str, Any]):
+    def __init__(self, flat_params: Mapping[str, Any] | None = None):
+        if flat_params is None:
+            return
         self.settings, self.observer_class, self.observer_config = self._split
         del self._split
         self.observer: KernelObserver = self.observer_class(self.observer_config)
@@ -121,6 +125,7 @@ class Runner:
         self._health = HealthWindow(self.settings["diagnostics.window"])
         self._extra: Counter[str] = Counter()      # rejections the caller names (not coded)
         self._last_extra: str | None = None
+        self._extra_resets: Counter[str] = Counter()
         self._window_start: float | None = None
         self.last_error: str | None = None
         self._configure(None)
@@ -183,12 +188,25 @@ class Runner:
             rc[:] = old._rc
             rh[:] = old._rh
         self._rs, self._rc, self._rh = rs, rc, rh
-        # the observer's arrays as rows of the (one-joint) arrays the block loop takes
-        kernels, models, st, nx, c, ic, wk, clk = obs.program()
-        self._prog = (kernels, models) + tuple(a.reshape(1, -1) for a in (st, nx, c, ic, wk, clk))
+        self._bind()
         self._js = self._joint_state_mapping()
         self._health.window = s["diagnostics.window"]
         self._one = self._events(1)
+
+    def _bind(self) -> None:
+        """The observer's arrays as rows of the (one-joint) arrays the block loop takes."""
+        kernels, models, st, nx, c, ic, wk, clk = self.observer.program()
+        self._prog = (kernels, models) + tuple(a.reshape(1, -1) for a in (st, nx, c, ic, wk, clk))
+
+    def __deepcopy__(self, memo):
+        import copy
+        new = object.__new__(type(self))
+        memo[id(self)] = new
+        for k, v in self.__dict__.items():
+            if k != "_prog":
+                new.__dict__[k] = copy.deepcopy(v, memo)
+        new._bind()
+        return new
 
     def _events(self, count: int):
         """Event buffers and output arrays for ``count`` events of one joint."""
@@ -232,7 +250,7 @@ class Runner:
 
     def _snapshot(self) -> "Runner":
         """The arrays ``_configure`` carries over (a shallow stand-in)."""
-        snap = object.__new__(Runner)
+        snap = Runner()
         snap._rs, snap._rl, snap._rc, snap._rh = self._rs, self._rl, self._rc, self._rh
         return snap
 
@@ -332,7 +350,11 @@ class Runner:
         requested by a person (``service``, ``enable``, ``reconfigure``, ``set_state``) also
         clears the health window: the diagnostics level starts afresh."""
         requested = reason_ in REQUESTED
-        L.reset(self._rs[0], self._rc[0], self._rl, RESTART_CODE[reason_], requested)
+        code = RESTART_CODE.get(reason_)
+        if code is None:                            # a reason of the caller's own
+            self._extra_resets[reason_] += 1
+            code = RESTART_CODE["other"]
+        L.reset(self._rs[0], self._rc[0], self._rl, code, requested)
         if requested:
             self._requested()
 
@@ -370,8 +392,10 @@ class Runner:
 
     @property
     def resets(self) -> Counter:
-        return Counter({RESTARTS[i]: int(v)
-                        for i, v in enumerate(self._rc[0, L.NREJ:L.NREJ + L.NRST]) if v})
+        out = Counter({RESTARTS[i]: int(v) for i, v in
+                       enumerate(self._rc[0, L.NREJ:L.NREJ + L.NRST]) if v and RESTARTS[i] != "other"})
+        out.update(self._extra_resets)
+        return out
 
     @property
     def last_rejection(self) -> str | None:
@@ -389,7 +413,7 @@ class Runner:
                 self._health.count(name_, int(row[idx]))
         for i, name_ in enumerate(RESTARTS):
             v = row[L.HW_RESTARTS + i]
-            if v:
+            if v and name_ != "other":
                 self._health.count(name_, int(v))
         row[L.HW:] = 0
 
