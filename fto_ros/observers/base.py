@@ -135,6 +135,10 @@ class Param:
             if kind == "string_array":
                 if not all(isinstance(v, str) for v in value):
                     raise ConfigError(name, f"expected a list of strings, got {short(value)}")
+                bad = [v for v in value if self.choices and v not in self.choices]
+                if bad:
+                    raise ConfigError(name, f"each must be one of {', '.join(self.choices)}; "
+                                      f"got {short(bad[0])}")
                 return [str(v) for v in value]
             if kind == "int_array":
                 if not all(not isinstance(v, (bool, str)) and float(v).is_integer() for v in value):
@@ -490,6 +494,11 @@ class KernelObserver(Observer):
     def convergence_extra(self) -> tuple[float, ...]:
         o, n = self._ic[self._K.EXTRA], self._ic[self._K.N_EXTRA]
         return tuple(self._st[o:o + n].tolist())
+
+    def adopt(self, st, nx, c, ic, wk, clk) -> None:
+        """Use these arrays (rows of the runner's arrays of every joint) as the observer's
+        memory from now on; they hold the same values as its own."""
+        self._st, self._nx, self._c, self._ic, self._wk, self._clk = st, nx, c, ic, wk, clk
 
     def program(self):
         """What the runner's block loop takes: (kernels, models, state, candidate, consts,

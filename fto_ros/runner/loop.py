@@ -2,10 +2,12 @@
 observer's kernel, the output checks and the counters, for a whole block of samples in
 one call, for every joint of the block.
 
-``run_block`` takes events in time order (an input u, a measurement y, or a sample the
-intake already refused, each for every joint) and, per event and joint, writes a status
-(OUTPUT, INPUT_TAKEN, HELD or a rejection code) and, for an accepted measurement, the
-estimate, the unknown-input estimate and the convergence values.  Joints are independent
+``run_block`` takes events in time order (an input u, a measurement y, a measurement
+PAIRED with the input just before it (a JointState carries both: skipped when that input
+was refused, never paired with a bad u), or a sample the intake already refused, each for
+every joint; a negative intake code skips the joint) and, per event and joint, writes a
+status (OUTPUT, INPUT_TAKEN, HELD, SKIPPED or a rejection code) and, for an accepted
+measurement, the estimate, the unknown-input estimate and the convergence values.  Joints are independent
 runners that share the observer family and the settings: a joint's bad sample rejects or
 restarts that joint only.  The same functions run one sample (the Python API of
 runner/runner.py is a block of one), so a block and the same samples one by one give the
@@ -31,8 +33,8 @@ from . import gate as G
 from .timeline import CONFIRM, HOLD, REJECT, STEP, classify
 
 # -- event kinds and statuses ---------------------------------------------------------
-MEASUREMENT, INPUT, REFUSED = 0, 1, 2
-OUTPUT, INPUT_TAKEN, HELD = 0, -2, -1
+MEASUREMENT, INPUT, REFUSED, PAIRED = 0, 1, 2, 3
+OUTPUT, INPUT_TAKEN, HELD, SKIPPED = 0, -2, -1, -3
 #: a ROS builtin_interfaces/Time holds int32 seconds
 MAX_STAMP = float(2 ** 31)
 #: inputs kept while a sample is held (replayed when the next sample confirms the jump)
@@ -327,24 +329,29 @@ def process(kernels, models, st, nx, c, ic, wk, clk, rs, rl, rc, rh, cfg, t, y, 
 # -- a block ---------------------------------------------------------------------------------
 def _run_block(kernels, models, st, nx, c, ic, wk, clk, rs, rl, rc, rh, cfg,
                ev_kind, ev_t, ev_v, ev_pre, o_status, o_x, o_ui, o_conv):
-    """Every event (k) for every joint (j), in order; see the module docstring."""
+    """Every event (k) for every joint (j), in order; see the module docstring.  ``models``
+    holds every joint's model terms; the arrays have a row per joint."""
     joints = st.shape[0]
     p = rl[L_P]
     m = rl[L_M]
+    input_refused = np.zeros(joints, np.bool_)
     for k in range(ev_t.shape[0]):
         kind = ev_kind[k]
         t = ev_t[k]
         for j in range(joints):
             pre = ev_pre[k, j]
-            if kind == REFUSED or pre != 0:
+            if pre < 0 or (kind == PAIRED and input_refused[j]):
+                o_status[k, j] = SKIPPED         # not this joint's event / its input failed
+            elif kind == REFUSED or pre != 0:
                 reject(rs[j], rc[j], pre)
                 o_status[k, j] = pre
             elif kind == INPUT:
-                o_status[k, j] = set_input(kernels, models, st[j], nx[j], c[j], ic[j], wk[j],
+                o_status[k, j] = set_input(kernels, models[j], st[j], nx[j], c[j], ic[j], wk[j],
                                            clk[j], rs[j], rl, rc[j], rh[j], cfg, t,
                                            ev_v[k, j, :m])
+                input_refused[j] = o_status[k, j] > 0
             else:
-                o_status[k, j] = process(kernels, models, st[j], nx[j], c[j], ic[j], wk[j],
+                o_status[k, j] = process(kernels, models[j], st[j], nx[j], c[j], ic[j], wk[j],
                                          clk[j], rs[j], rl, rc[j], rh[j], cfg, t,
                                          ev_v[k, j, :p], o_x[k, j], o_ui[k, j], o_conv[k, j])
     return 0
@@ -374,7 +381,7 @@ if J.ENABLED:
     _A2, _A3 = _t.float64[:, ::1], _t.float64[:, :, ::1]
     _I2 = _t.int64[:, ::1]
     run_block = J.kernel(_run_block, _t.int64(
-        J.KERNELS, J.MODELS, _A2, _A2, _A2, _I2, _A2, _A2, _A2, _I, _I2, _A2, _A,
+        J.KERNELS, J.MODELS_BY_JOINT, _A2, _A2, _A2, _I2, _A2, _A2, _A2, _I, _I2, _A2, _A,
         _t.int8[::1], _A, _A3, _t.int16[:, ::1], _t.int16[:, ::1], _A3, _A3, _A3))
     set_state = J.kernel(_set_state, _t.void(_A, _t.int64[::1], _I, _A))
     time_jump = J.kernel(_time_jump, _t.void(_A, _t.int64[::1], _I, _t.float64, _t.int64))
