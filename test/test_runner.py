@@ -635,7 +635,7 @@ def test_observer_letting_nan_through_is_never_published(uniform):
     good = r._prog[0]
     obs._wk = np.append(obs._wk, 1.0)             # the bug's switch, in the work memory
     obs._kernels = broken
-    r._bind()
+    r._stack()
     r.set_input(uniform.t[100], uniform.u[100])
     assert r.process(uniform.t[100], uniform.y[100]) == "non_finite_estimate"
     assert r.rejected == {"non_finite_estimate": 1}
@@ -644,7 +644,7 @@ def test_observer_letting_nan_through_is_never_published(uniform):
     assert st.level == ERROR
     assert "non-finite" in st.message
     obs._kernels = good                                       # fixed: restarts at the next sample
-    r._bind()
+    r._stack()
     out = drive(r, uniform, 101, 110)
     assert out[101].convergence[0] == 0.0
     for o in out.values():
