@@ -223,6 +223,11 @@ class _Compiled:
         self.names: list[str] = []
         self.seconds = 0.0
 
+    def note(self, name: str, seconds: float) -> None:
+        if ENABLED:
+            self.names.append(name)
+            self.seconds += seconds
+
 
 COMPILED = _Compiled()
 

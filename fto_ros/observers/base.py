@@ -330,6 +330,11 @@ class Observer(abc.ABC):
         return None
 
     @property
+    def has_unknown_input(self) -> bool:
+        """Whether this observer identifies an unknown input (publishes its estimate)."""
+        return type(self).unknown_input is not Observer.unknown_input
+
+    @property
     def guaranteed_time(self) -> float:
         """Time after reset from which the estimate is guaranteed (inf: none, the default)."""
         return math.inf
@@ -465,6 +470,10 @@ class KernelObserver(Observer):
     def estimate(self) -> np.ndarray:
         o, n = self._ic[self._K.EST], self._ic[self._K.N_STATES]
         return self._st[o:o + n]
+
+    @property
+    def has_unknown_input(self) -> bool:
+        return bool(self._ic[self._K.N_UI])
 
     @property
     def unknown_input(self):

@@ -48,7 +48,6 @@ import numpy as np
 
 from ..bag import BagError
 from ..bag.reader import jazzy_typestore
-from ..observers.base import Observer
 from ..runner.params_file import load_params_files
 from ..runner.runner import LEVEL_NAMES, Runner
 from . import metrics as M
@@ -315,7 +314,7 @@ def _unknown_input_errors(obs, run: _Run, t_est_ns: np.ndarray, conv: np.ndarray
                           settle: float) -> tuple[dict | None, str | None, tuple | None]:
     """(errors like 'errors' but for the unknown input, a note, plot data) of a finished run."""
     if not run.est_ui:
-        note = None if type(obs).unknown_input is Observer.unknown_input else \
+        note = None if not obs.has_unknown_input else \
             "the observer published no unknown-input estimate"
         return None, note, None
     idx = np.asarray(run.est_ui_idx, dtype=np.int64)

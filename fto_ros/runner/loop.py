@@ -375,18 +375,9 @@ def _time_jump(rs, rc, rl, t, reason):
         rs[U_OK] = 1.0 if rl[L_M] == 0 else 0.0
 
 
-if J.ENABLED:
-    from numba import types as _t
-    _A, _I = J.A, J.I
-    _A2, _A3 = _t.float64[:, ::1], _t.float64[:, :, ::1]
-    _I2 = _t.int64[:, ::1]
-    run_block = J.kernel(_run_block, _t.int64(
-        J.KERNELS, J.MODELS_BY_JOINT, _A2, _A2, _A2, _I2, _A2, _A2, _A2, _I, _I2, _A2, _A,
-        _t.int8[::1], _A, _A3, _t.int16[:, ::1], _t.int16[:, ::1], _A3, _A3, _A3))
-    set_state = J.kernel(_set_state, _t.void(_A, _t.int64[::1], _I, _A))
-    time_jump = J.kernel(_time_jump, _t.void(_A, _t.int64[::1], _I, _t.float64, _t.int64))
-else:
-    run_block, set_state, time_jump = _run_block, _set_state, _time_jump
+# compiled at their first call (after the parameters were validated: a refused
+# configuration never waits for a compiler), cached on disk
+run_block, set_state, time_jump = jit(_run_block), jit(_set_state), jit(_time_jump)
 
 
 def new_state(joints: int, rl: np.ndarray, width: int, held_width: int):

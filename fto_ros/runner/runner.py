@@ -146,6 +146,14 @@ class Runner:
         self.last_error: str | None = None
         self._stack()
         self._configure()
+        self._warm()
+
+    def _warm(self) -> None:
+        """Compile (or load from the cache) the block loop for this observer now, not at the
+        first sample: an empty block."""
+        start = time.perf_counter()
+        self._run(self._events(0))
+        J_.COMPILED.note("runner block loop", time.perf_counter() - start)
 
     def _joint_roles(self, flats) -> list:
         from ..plant import given, resolve_plant
