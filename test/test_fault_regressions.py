@@ -7,6 +7,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -289,3 +292,23 @@ def test_an_undecodable_message_is_one_line_naming_the_topic(motor, tmp_path, ca
     rc, err = _cli(capsys, path, *SD_ARGS, "--out", tmp_path / "o")
     assert rc == 1 and len(err) == 1, err
     assert "/dc_motor/measured_output" in err[0] and "decode" in err[0] and "unexpected" not in err[0]
+
+
+# -- parameters the design cannot use -------------------------------------------------------------
+@pytest.mark.parametrize("value", ["1.0e-300", "1.0e+300", "9223372036854775808", "1e6"])
+def test_a_design_that_fails_is_one_line_exit_2_without_warnings(motor, tmp_path, value):
+    """Was: scipy and numpy warnings on stderr, then 'unexpected LinAlgError', exit 1 (the
+    live node died of the same LinAlgError out of Runner.reconfigure).  A real process, so
+    that whatever Python would print reaches stderr."""
+    t, sim = motor
+    bag = tmp_path / "bag"
+    _write_motor_bag(bag, t[:300], sim)
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    res = subprocess.run([sys.executable, "-c", "import sys; from fto_ros.replay.cli import main; "
+                          "sys.exit(main())", str(bag), *SD_ARGS, "--set",
+                          f"single_delay.tau={value}", "--out", str(tmp_path / "o"), "--no-progress"],
+                         capture_output=True, text=True, env=env, timeout=120)
+    lines = res.stderr.strip().splitlines()
+    assert res.returncode == 2 and len(lines) == 1, res.stderr
+    assert lines[0].startswith("fto-replay: error: parameter 'single_delay."), lines[0]
+    assert "Warning" not in res.stderr and not res.stdout.strip()

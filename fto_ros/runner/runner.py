@@ -24,13 +24,14 @@ import math
 import time
 from collections import Counter, deque
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from ..core.errors import ConfigError
 from ..observers.base import Observer, SampleRejected, check_vector
 from . import settings as S
+from .build import changed_names, design_guard
 from .gate import OutlierGate, channel_limits, exceeds
 from .health import FAILURES, HealthWindow
 from .timeline import CONFIRM, HOLD, REJECT, STEP, Held, classify
@@ -76,11 +77,15 @@ class Status:
 class Runner:
     """Validates samples, drives one observer, builds outputs and diagnostics."""
 
-    def __init__(self, flat_params: Mapping[str, Any]):
-        self.settings, self.observer_class, self.observer_config = S.split(flat_params)
-        self.observer: Observer = self.observer_class(self.observer_config)
-        obs = self.observer
-        S.check_settings(self.settings, obs.n_states, obs.n_outputs, obs.n_inputs)
+    def __init__(self, flat_params: Mapping[str, Any], changed: Sequence[str] | None = None):
+        """ConfigError for unusable parameters, whatever fails (build.py): blamed on the
+        ``changed`` names when given (a run-time change), else on the observer's section."""
+        with design_guard(flat_params, changed):
+            self.settings, self.observer_class, self.observer_config = S.split(flat_params)
+            self.observer: Observer = self.observer_class(self.observer_config)
+            obs = self.observer
+            S.check_settings(self.settings, obs.n_states, obs.n_outputs, obs.n_inputs)
+        self._flat = dict(flat_params)
         self.accepted = 0
         self.rejected: Counter[str] = Counter()
         self.resets: Counter[str] = Counter()
@@ -126,10 +131,11 @@ class Runner:
         Raises ConfigError and keeps running the old configuration when the
         new one is unusable.  The observer restarts (counted as 'reconfigure').
         """
-        new = Runner(flat_params)
+        new = Runner(flat_params, changed_names(self._flat, flat_params))
         if new.observer_type != self.observer_type:
             raise ConfigError("observer.type", "cannot be changed at run time; restart the node")
         self.settings, self.observer_config, self.observer = new.settings, new.observer_config, new.observer
+        self._flat = new._flat
         self._configure()
         self.reset("reconfigure")
 
