@@ -17,6 +17,7 @@ import pytest
 
 from faultkit import committed_configs, runner_for, stream_for
 from fto_ros.bag import BagReader, BagWriter
+from fto_ros.core.errors import ConfigError
 from fto_ros.models import dc_motor
 from fto_ros.models.simulate import simulate, uniform_grid
 from fto_ros.replay import cli as replay_cli
@@ -312,3 +313,48 @@ def test_a_design_that_fails_is_one_line_exit_2_without_warnings(motor, tmp_path
     assert res.returncode == 2 and len(lines) == 1, res.stderr
     assert lines[0].startswith("fto-replay: error: parameter 'single_delay."), lines[0]
     assert "Warning" not in res.stderr and not res.stdout.strip()
+
+
+# -- sizes ----------------------------------------------------------------------------------------
+def _no_parsing(monkeypatch):
+    """Make any expression parse fail the test: a refusal must come before any work."""
+    def parse(*args, **kwargs):
+        raise AssertionError("an expression was parsed before the size check")
+    import fto_ros.core.named_model as named_model
+    import fto_ros.core.symbolic_model as symbolic_model
+    monkeypatch.setattr(named_model, "parse", parse)
+    monkeypatch.setattr(symbolic_model, "parse", parse)
+
+
+BIG = 100_000
+
+
+@pytest.mark.parametrize("what", ["constants", "states", "inputs", "outputs", "array",
+                                  "some_constants", "some_states"])
+def test_a_huge_plant_block_is_refused_before_any_work(monkeypatch, what):
+    """Was: a plant block with 100,000 constants was not refused within 40 s."""
+    flat = load_params_files(params_files(ROOT / "config" / "dc_motor_ekf.yaml"))
+    change, name = {
+        "constants": ({"plant.constants": [f"c{i}={i}" for i in range(BIG)]}, "plant.constants"),
+        "some_constants": ({"plant.constants": [f"c{i}={i}" for i in range(5000)]}, "plant.constants"),
+        "states": ({"plant.states": [f"x{i}" for i in range(BIG)], "plant.f": ["0"] * BIG},
+                   "plant.states"),
+        "some_states": ({"plant.states": [f"x{i}" for i in range(500)], "plant.f": ["0"] * 500},
+                        "plant.states"),
+        "inputs": ({"plant.inputs": [f"u{i}" for i in range(100)]}, "plant.inputs"),
+        "outputs": ({"plant.h": ["q"] * 100}, "plant.h"),
+        "array": ({"limits.measurement": [1.0] * 10 ** 6}, "limits.measurement"),
+    }[what]
+    _no_parsing(monkeypatch)
+    with pytest.raises(ConfigError) as err:
+        Runner({**flat, **change})
+    assert err.value.parameter == name and "at most" in str(err.value), err.value
+
+
+def test_a_huge_params_file_is_one_line_exit_2(tmp_path, capsys):
+    plant = tmp_path / "plant.yaml"
+    plant.write_text("/**:\n  ros__parameters:\n    plant:\n      constants: ["
+                     + ", ".join(f"'c{i}={i}'" for i in range(BIG)) + "]\n")
+    rc, err = _cli(capsys, ROOT / "bags" / "dc_motor_nominal", *SD_ARGS, "--params", plant,
+                   "--out", tmp_path / "o")
+    assert rc == 2 and len(err) == 1 and "plant.constants" in err[0] and "at most" in err[0], err

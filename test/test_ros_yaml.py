@@ -145,10 +145,10 @@ def test_a_refused_list_names_the_element():
 
 def test_sizes_are_refused_before_anything_is_built(tmp_path):
     big = "[" + ", ".join(["1.0"] * (MAX_ITEMS + 1)) + "]"
-    with pytest.raises(ConfigError, match=f"more than {MAX_ITEMS} elements"):
+    with pytest.raises(ConfigError, match=f"over {MAX_ITEMS} elements: at most"):
         read_text(f"a:\n  b: {big}\n", "f.yaml")
     many = "".join(f"k{i}: 1\n" for i in range(MAX_ITEMS + 1))
-    with pytest.raises(ConfigError, match=f"more than {MAX_ITEMS} keys"):
+    with pytest.raises(ConfigError, match=f"over {MAX_ITEMS} keys: at most"):
         read_text(many, "f.yaml")
     with pytest.raises(ConfigError, match="given twice"):
         read_text("a: 1\na: 2\n", "f.yaml")

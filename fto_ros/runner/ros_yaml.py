@@ -35,12 +35,12 @@ from typing import Any
 import yaml
 
 from ..core.errors import ConfigError, short
+from ..observers.base import MAX_ARRAY
 
 #: deepest nesting of mappings and lists accepted
 MAX_DEPTH = 32
-#: most elements in one list, and most keys in one mapping (the largest matrix an observer
-#: takes is 32 x 32 = 1024 values; a plant block has one expression per state)
-MAX_ITEMS = 10_000
+#: most elements in one list (an array parameter's limit), and most keys in one mapping
+MAX_ITEMS = MAX_ARRAY
 
 _TRUE = frozenset("y Y yes Yes YES true True TRUE on On ON".split())
 _FALSE = frozenset("n N no No NO false False FALSE off Off OFF".split())
@@ -165,8 +165,8 @@ def _build(events, source: str, name: str | None) -> Any:
                                   f"{len(top.box)} is a list or a mapping; a ROS 2 parameter "
                                   "is a scalar or a flat list")
             if len(top.box) >= MAX_ITEMS:
-                raise ConfigError(_name(top.path), f"{source}: a list of more than {MAX_ITEMS} "
-                                  "elements")
+                raise ConfigError(_name(top.path), f"{source}: a list of over {MAX_ITEMS} "
+                                  f"elements: at most {MAX_ITEMS}")
             top.box.append(value)
         else:
             top.box[top.key] = value
@@ -199,8 +199,8 @@ def _build(events, source: str, name: str | None) -> Any:
                     raise ConfigError(_name(top.path + [event.value]), f"{source} line {line}: "
                                       "given twice")
                 if len(top.box) >= MAX_ITEMS:
-                    raise ConfigError(_name(top.path), f"{source}: a mapping of more than "
-                                      f"{MAX_ITEMS} keys")
+                    raise ConfigError(_name(top.path), f"{source}: a mapping of over "
+                                      f"{MAX_ITEMS} keys: at most {MAX_ITEMS}")
                 top.key = event.value
                 continue
             style = event.style or None                # libyaml says '' for plain
