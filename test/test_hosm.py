@@ -8,11 +8,13 @@ precision, no integrator tolerance in the comparison).
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import pytest
 from scipy.linalg import expm
 
+from fto_ros.core.linear import place_observer_poles
 from fto_ros.core.structure import StructureError, analyse, invariant_zeros, relative_degree
 from fto_ros.models import fld_examples as fx
 from fto_ros.observers import REGISTRY
@@ -438,3 +440,39 @@ def test_replay_dc_motor_load_reports_unknown_input_errors(tmp_path):
     assert ui["max_abs_after_settle"] < 1e-2 and ui["max_abs"] > 0.1
     assert m["errors"]["per_state"]["q_dot"]["max_abs_after_settle"] < 1e-4
     assert m["unknown_input_topic"] == "/dc_motor/true_unknown_input"
+
+
+# -- a large design: no warning when it succeeded (the 7-joint arm, 14 states) --------------------
+def _arm(joints: int = 7):
+    n = 2 * joints
+    A, C, D = np.zeros((n, n)), np.zeros((joints, n)), np.zeros((n, joints))
+    for j in range(joints):
+        A[2 * j, 2 * j + 1], A[2 * j + 1, 2 * j + 1] = 1.0, -0.5 * (j + 1)
+        C[j, 2 * j], D[2 * j + 1, j] = 1.0, 1.0
+    return A, C, D
+
+
+def test_a_14_state_start_warns_nothing_and_places_the_poles():
+    """Was: scipy's 'Convergence was not reached' at every 14-state start (its robustness
+    iteration, not the placement): the placed poles are checked instead."""
+    A, C, D = _arm()
+    poles = [-100.0 - 5.0 * i for i in range(14)]
+    cfg = resolve(HosmObserver.PARAMS, {
+        "n_states": 14, "n_outputs": 7, "A": A.ravel().tolist(), "C": C.ravel().tolist(),
+        "D": D.ravel().tolist(), "poles": poles, "M": [100.0], "identify_unknown_input": False})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        obs = HosmObserver(cfg)
+    got = np.sort(np.linalg.eigvals(A - obs.L @ C).real)
+    np.testing.assert_allclose(got, np.sort(poles), rtol=1e-6)
+
+
+def test_poles_that_were_not_placed_are_refused(monkeypatch):
+    import scipy.signal
+
+    class Bad:
+        gain_matrix = np.zeros((7, 14))
+    monkeypatch.setattr(scipy.signal, "place_poles", lambda *a, **k: Bad())
+    A, C, _ = _arm()
+    with pytest.raises(ConfigError, match="not placed"):
+        place_observer_poles(A, C, [-100.0 - 5.0 * i for i in range(14)], "hosm.poles")
