@@ -31,7 +31,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="params files: the plant file (and any shared settings) first, then "
                         "tuning files (files with observer.type), each designed on its own")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                   help="override one parameter of the plant (read as YAML, like -p NAME:=VALUE)")
+                   help="override one parameter of the plant (read as rcl reads -p NAME:=VALUE)")
     p.add_argument("--node-name", default=None, metavar="N",
                    help="node name selecting the params blocks (default observer_node)")
     return p

@@ -382,6 +382,18 @@ class HosmObserver(Observer):
         return self._x_hat
 
     @property
+    def differentiated_signal(self) -> np.ndarray:
+        """e = y - C z at the last update: what differentiator i differentiates; its
+        ``bounded_orders[i]``-th time derivative is what M[i] bounds."""
+        return self._ytil.copy()
+
+    @property
+    def bounded_orders(self) -> list[int]:
+        """Per output, the order of the derivative of e_i that M[i] bounds: the
+        differentiator's order + 1 (r_i, or r_i + k + 1 when identifying)."""
+        return [o + 1 for o in self.orders]
+
+    @property
     def unknown_input(self):
         return self._zeta
 

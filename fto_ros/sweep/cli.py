@@ -62,7 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "more bags")
     p.add_argument("--set", action="append", default=[], metavar="NAME=V1,V2,...",
                    help="swept parameter: full name (e.g. single_delay.tau) and its values, "
-                        "each read as YAML like fto-replay --set; commas inside brackets or "
+                        "each read as ROS reads it, like fto-replay --set; commas inside brackets or "
                         "quotes do not split, so list values work: "
                         "luenberger.process_noise=[1e-6, 0.25, 0.04],[1e-6, 1.0, 0.04]")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory")
