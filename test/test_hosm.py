@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -476,3 +477,45 @@ def test_poles_that_were_not_placed_are_refused(monkeypatch):
     A, C, _ = _arm()
     with pytest.raises(ConfigError, match="not placed"):
         place_observer_poles(A, C, [-100.0 - 5.0 * i for i in range(14)], "hosm.poles")
+
+
+# -- M from a recording (fto-design --suggest-from) ------------------------------------------------
+@pytest.mark.parametrize("noise", [0.0, 1e-6, 1e-4, 1e-2])
+def test_the_derivative_bound_estimator_recovers_a_known_derivative(noise):
+    from fto_ros.core.derivative_bound import derivative_bound
+    rng = np.random.default_rng(3)
+    t = np.cumsum(rng.uniform(0.8e-3, 1.2e-3, 5000))           # irregular sampling
+    x = np.sin(2 * np.pi * 2.0 * t) + noise * rng.standard_normal(t.size)
+    b = derivative_bound(t, x, 3)
+    true = (2 * np.pi * 2.0) ** 3
+    assert not b.noise_limited
+    assert abs(b.bound - true) <= (0.01 if noise == 0 else 0.06) * true, (b, true)
+
+
+def test_below_the_noise_is_said():
+    from fto_ros.core.derivative_bound import derivative_bound
+    rng = np.random.default_rng(4)
+    t = np.arange(0.0, 2.0, 1e-3)
+    b = derivative_bound(t, 1e-3 * rng.standard_normal(t.size), 3)
+    assert b.noise_limited and math.isfinite(b.bound) and b.bound > 0
+
+
+def test_fto_design_suggests_m_from_a_recording(capsys):
+    from fto_ros.cli import design
+    root = Path(__file__).resolve().parents[1]
+    rc = design.main([str(root / "config" / "dc_motor_plant.yaml"),
+                      str(root / "config" / "dc_motor_hosm.yaml"),
+                      str(root / "config" / "dc_motor_luenberger.yaml"),
+                      "--suggest-from", str(root / "bags" / "dc_motor_load")])
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    line = next(x for x in out.splitlines() if "max |d^3/dt^3 (y0 - c0 z)|" in x)
+    assert "rad/s^3" in line, line                                   # the plant's units
+    measured = float(line.split("= ")[1].split()[0])
+    suggested = float(next(x for x in out.splitlines() if "hosm.M: [" in x).split("[")[1][:-1])
+    assert 1.0 < measured < 25.5 and suggested == pytest.approx(3 * measured, rel=0.05)
+    assert "luenberger has no M to suggest" in out
+    rc = design.main([str(root / "config" / "dc_motor_plant.yaml"),
+                      str(root / "config" / "dc_motor_hosm.yaml"), "--suggest-from", "/nonexistent"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1 and len(err) == 1 and "unexpected" not in err[0], err
