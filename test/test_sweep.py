@@ -392,3 +392,67 @@ def test_plant_units_are_checked_and_read(tmp_path):
     assert units_of(flat) == (["rad", "rad/s", "A"], ["N m"], ["rad"])
     with pytest.raises(ConfigError, match="plant.units"):
         Runner({**flat, "plant.units": ["rad"]})
+
+
+# -- progress (a terminal) --------------------------------------------------------------------------
+def _on_a_terminal(cmd: list[str], cwd: Path, ok=(0,)) -> str:
+    """What ``cmd`` writes to stderr when stderr is a terminal (a pseudo-terminal)."""
+    import select
+    import subprocess
+    import sys
+    master, slave = os.openpty()
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    p = subprocess.Popen([sys.executable, "-c", "import sys; from fto_ros.%s import main; "
+                          "sys.exit(main())" % cmd[0], *cmd[1:]], cwd=cwd, env=env,
+                         stderr=slave, stdout=subprocess.DEVNULL, stdin=subprocess.DEVNULL)
+    os.close(slave)
+    out = b""
+    while True:
+        ready, _, _ = select.select([master], [], [], 1.0)
+        if ready:
+            try:
+                chunk = os.read(master, 65536)
+            except OSError:
+                break
+            if not chunk:
+                break
+            out += chunk
+        elif p.poll() is not None:
+            break
+    assert p.wait(timeout=300) in ok
+    return out.decode(errors="replace")
+
+
+@pytest.mark.slow
+def test_sweep_progress_bar_from_the_start_on_two_workers(tmp_path):
+    """Was: nothing for the first ~10 s (the parser imported the whole replay first)."""
+    text = _on_a_terminal(["sweep.cli", "--params", str(SINGLE_DELAY), "--bag", str(NOMINAL),
+                           "--set", "single_delay.k=150,200", "--out", str(tmp_path / "s"),
+                           "--workers", "2", "--no-plots"], REPO)
+    first = text.index("[1/2]")
+    assert "loading" in text[:first] and "0/2 runs" in text[:first], text[:first]
+    assert "2/2 runs" in text, text
+    assert "leaked" not in text
+
+
+@pytest.mark.slow
+def test_report_progress_bar_with_two_workers(tmp_path):
+    """Was: no progress at all with more than one worker (the default)."""
+    bags, config = tmp_path / "bags", tmp_path / "config"
+    bags.mkdir()
+    config.mkdir()
+    (bags / "dc_motor_nominal").symlink_to(NOMINAL)
+    for name in ("dc_motor_plant.yaml", "dc_motor_luenberger.yaml", "dc_motor_single_delay.yaml"):
+        shutil.copy(REPO / "config" / name, config / name)
+    text = _on_a_terminal(["cli.report", "--bags-dir", str(bags), "--config-dir", str(config),
+                           "--out", str(tmp_path / "o"), "--workers", "2"], REPO, ok=(0, 1))
+    # (exit 1: the config's other bags are not in this bags directory)
+    assert "0/2 replays" in text and "2/2 replays" in text, text
+    assert "leaked" not in text
+
+
+def test_sweep_help_says_the_replays_defaults():
+    from fto_ros.replay import DEFAULT_NODE_NAME, DEFAULT_TOLERANCE
+    helps = {a.dest: a.help for a in cli.build_parser()._actions}
+    assert f"default {DEFAULT_TOLERANCE:g}," in helps["tolerance"]
+    assert f"default {DEFAULT_NODE_NAME})" in helps["node_name"]
