@@ -64,6 +64,8 @@ def _strtoll(text: str) -> int | None:
     if not body or m is None:
         return None
     sign, hexa, octal, dec = m.groups()
+    if len((hexa or octal or dec).lstrip("0")) > 22:   # more digits than any int64 has
+        return None
     value = int(hexa, 16) if hexa is not None else int(octal, 8) if octal is not None else int(dec)
     value = -value if sign == "-" else value
     return value if -_INT64 <= value < _INT64 else None
@@ -81,18 +83,37 @@ def _strtod(text: str) -> float | None:
     if hexa is not None and (hexa.group(2) or hexa.group(3)):
         sign, whole, frac, exp = hexa.groups()
         digits = whole + (frac or "")
-        exact = Fraction(int(digits, 16), 16 ** len(frac or "")) * Fraction(2) ** int(exp or 0)
+        nonzero = int(digits, 16) != 0
+        if exp is not None and len(exp.lstrip("+-")) > 6:    # |exponent| >= 1e6
+            if nonzero:
+                return None                                  # overflow or underflow: ERANGE
+            value = 0.0
+        else:
+            try:
+                value = float.fromhex(body)
+            except OverflowError:
+                return None
+
+        def exact():
+            return Fraction(int(digits, 16), 16 ** len(frac or "")) * Fraction(2) ** int(exp or 0)
     elif _DEC_RE.fullmatch(body):
         sign = "-" if body.startswith("-") else ""
-        exact = abs(Fraction(body))
+        value = float(body)                            # correctly rounded, as glibc's
+        nonzero = any(c in "123456789" for c in body.split("e")[0].split("E")[0])
+
+        def exact():
+            return Fraction(body)
     else:
         return None
-    try:
-        value = float(exact)
-    except OverflowError:
+    if math.isinf(value):
         return None
-    if math.isinf(value) or (exact and abs(value) < _TINY and Fraction(value) != exact):
-        return None
+    value = abs(value)
+    if nonzero and value < _TINY:
+        try:
+            if value == 0.0 or Fraction(value) != abs(exact()):
+                return None                            # an inexact result below normal: ERANGE
+        except ValueError:                             # thousands of digits: taken as inexact
+            return None
     return -value if sign == "-" else value
 
 
