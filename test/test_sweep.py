@@ -337,7 +337,7 @@ def _figure_of(monkeypatch, draw):
     return saved[0]
 
 
-def _row(bag, setting, c, e, role=results.SWEEP, run=0):
+def _pareto_row(bag, setting, c, e, role=results.SWEEP, run=0):
     return {"bag": bag, "_setting": setting, "convergence_time_s": c, "mean_rms_err": e,
             "role": role, "run": run, "params": setting}
 
@@ -346,12 +346,13 @@ def test_pareto_draws_never_converged_runs_apart_and_labels_every_point(monkeypa
     """Was: runs that never converged drawn at 1.0 s on a 0.96-1.04 axis, one of three points
     labelled, the legend a raw file list."""
     from fto_ros.sweep import plots
-    never = [_row("bags/a", f"luenberger.poles=[{-20 * k}.0]", math.inf, 0.00975 + 1e-5 * k, run=k)
-             for k in range(1, 4)]
-    base = _row("bags/a", "config/dc_motor_plant.yaml,config/dc_motor_ekf.yaml", math.inf, 0.0102,
-                role=results.BASELINE, run=4)
-    mixed = [_row("bags/b", "tau=0.05", 0.05, 0.003, run=5), _row("bags/b", "tau=0.1", 0.1, 0.002, run=6),
-             _row("bags/b", "tau=0.2", math.inf, 0.0021, run=7)]
+    never = [_pareto_row("bags/a", f"luenberger.poles=[{-20 * k}.0]", math.inf,
+                         0.00975 + 1e-5 * k, run=k) for k in range(1, 4)]
+    base = _pareto_row("bags/a", "config/dc_motor_plant.yaml,config/dc_motor_ekf.yaml", math.inf,
+                       0.0102, role=results.BASELINE, run=4)
+    mixed = [_pareto_row("bags/b", "tau=0.05", 0.05, 0.003, run=5),
+             _pareto_row("bags/b", "tau=0.1", 0.1, 0.002, run=6),
+             _pareto_row("bags/b", "tau=0.2", math.inf, 0.0021, run=7)]
     fig = _figure_of(monkeypatch, lambda: plots.pareto(tmp_path / "p.png", never + [base] + mixed))
     a, b = fig.axes
     for ax, rows in ((a, never), (b, mixed)):
