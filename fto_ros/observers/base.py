@@ -21,6 +21,9 @@ from ..core.reasons import REJECTIONS
 
 #: parameter kinds, mapped one to one onto ROS 2 parameter types
 KINDS = ("bool", "int", "double", "string", "double_array", "int_array", "string_array")
+#: most elements of an array parameter (the largest matrix an observer takes, 64 x 64, has
+#: 4096): a longer one is refused before its elements are looked at
+MAX_ARRAY = 10_000
 
 
 def check_vector(v, n: int, what: str) -> str | None:
@@ -39,6 +42,12 @@ def check_vector(v, n: int, what: str) -> str | None:
     except TypeError:
         return f"{what}_not_numeric"
     return None
+
+
+def check_size(name: str, value: Any) -> None:
+    """ConfigError for a list longer than :data:`MAX_ARRAY` (looks at its length only)."""
+    if isinstance(value, (list, tuple, np.ndarray)) and len(value) > MAX_ARRAY:
+        raise ConfigError(name, f"a list of {len(value)} elements: at most {MAX_ARRAY}")
 
 
 class SampleRejected(Exception):
@@ -132,6 +141,7 @@ class Param:
                 return value
             if isinstance(value, (str, bytes)) or not isinstance(value, (Sequence, np.ndarray)):
                 raise ConfigError(name, f"expected a list, got {short(value)}")
+            check_size(name, value)
             if kind == "string_array":
                 if not all(isinstance(v, str) for v in value):
                     raise ConfigError(name, f"expected a list of strings, got {short(value)}")

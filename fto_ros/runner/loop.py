@@ -16,7 +16,8 @@ same outputs, rejections, restarts and counts by construction.
 The runner's memory per joint is a float row ``rs`` (scalars below, then arrays at offsets
 the layout ``rl`` gives: the current input, the held sample, the next start's estimate,
 the gate's memory), counters ``rc`` (rejections and restarts by code, then the health
-bucket) and the inputs kept while a sample is held ``rh``; ``cfg`` holds the settings.
+bucket) and ``rh``: the inputs kept while a sample is held, then the inputs a predicting
+observer has still to be advanced to (MAX_HELD_INPUTS of each); ``cfg`` holds the settings.
 The rules are the runner's (runner/runner.py's docstring; docs/architecture.md).
 """
 from __future__ import annotations
@@ -43,8 +44,8 @@ MAX_HELD_INPUTS = 10000
 # -- rs: scalars --------------------------------------------------------------------
 (T_LAST, T0, T_INPUT, U_OK, HELD_ON, HELD_T, HELD_TINPUT, HELD_UOK, HELD_KIND, HELD_N,
  START_FROM, ACCEPTED, REBASES, WIN_ACCEPTED, LAST_REJ, HAS_OUT, LAST_RES, LAST_CONV,
- LAST_SINCE, LAST_GT) = range(20)
-RS_SCALARS = 20
+ LAST_SINCE, LAST_GT, PEND_N) = range(21)
+RS_SCALARS = 24
 # -- rl: the layout -----------------------------------------------------------------
 (L_N, L_P, L_M, L_R, L_NCONV, L_U, L_HELD_Y, L_HELD_U, L_X0, L_GATE, L_E, L_CONFIRM,
  L_YLIM, L_ULIM, L_FLOOR, L_INIT) = range(16)
@@ -100,6 +101,7 @@ def reset(rs, rc, rl, reason, requested):
     G.clear(rs[rl[L_GATE]:], p, rl[L_CONFIRM])
     if reason != _SET_STATE:
         rs[START_FROM] = 0.0
+    rs[PEND_N] = 0.0
     if not requested:
         rc[HW_RESTARTS + reason] += 1
 
@@ -177,7 +179,7 @@ def _output(rs, rl, cfg, st, ic, t, ox, oui, oconv):
 
 
 @jit
-def _sample(kernels, models, st, nx, c, ic, wk, clk, rs, rl, rc, cfg, t, y, ox, oui, oconv):
+def _sample(kernels, models, st, nx, c, ic, wk, clk, rs, rl, rc, rh, cfg, t, y, ox, oui, oconv):
     """Hand a classified sample to the observer: OUTPUT (written) or a rejection code."""
     m = rl[L_M]
     if rs[U_OK] == 0.0:
@@ -195,6 +197,8 @@ def _sample(kernels, models, st, nx, c, ic, wk, clk, rs, rl, rc, cfg, t, y, ox, 
             K.restart(kernels, models, st, nx, c, ic, wk, clk, cfg[rl[L_INIT]:rl[L_INIT] + n], True)
         else:
             K.restart(kernels, models, st, nx, c, ic, wk, clk, cfg[0:0], False)
+    elif rs[PEND_N] > 0.0:
+        _advance_to(kernels, models, st, nx, c, ic, wk, clk, rs, rl, rc, rh, cfg, t)
     u = rs[rl[L_U]:rl[L_U] + m]
     code = K.update(kernels, models, st, nx, c, ic, wk, clk, t, y, u)
     if code != 0:
@@ -244,13 +248,57 @@ def set_input(kernels, models, st, nx, c, ic, wk, clk, rs, rl, rc, rh, cfg, t, u
         rh[i * (1 + m)] = t
         rh[i * (1 + m) + 1:(i + 1) * (1 + m)] = u
         rs[HELD_N] += 1.0
-    if ic[K.HAS_ADVANCE] != 0 and rs[T0] == rs[T0] and rs[T_LAST] == rs[T_LAST] \
-            and 0.0 <= t - rs[T_LAST] <= step_limit(c, cfg):
-        code = K.advance(kernels, models, st, nx, c, ic, wk, clk, t, u, cfg[0:0])
-        if code != 0:
-            reject(rs, rc, code)
-            return code
+    # a predicting observer integrates up to each input instant, so a fast input is applied
+    # when it changes; that happens when a measurement reaches the input's stamp
+    # (_advance_to), so an input stamped ahead cannot move the prediction past measurements
+    # still to come
+    if ic[K.HAS_ADVANCE] != 0 and rs[T0] == rs[T0]:
+        w = 1 + m
+        base = MAX_HELD_INPUTS * w
+        n = int(rs[PEND_N])
+        if n == MAX_HELD_INPUTS:                 # full: the oldest goes
+            rh[base:base + (n - 1) * w] = rh[base + w:base + n * w].copy()
+            n -= 1
+        rh[base + n * w] = t
+        rh[base + n * w + 1:base + (n + 1) * w] = u
+        rs[PEND_N] = n + 1
     return INPUT_TAKEN
+
+
+@jit
+def _advance_to(kernels, models, st, nx, c, ic, wk, clk, rs, rl, rc, rh, cfg, t):
+    """Apply the pending inputs stamped up to t, in stamp order, to a predicting observer,
+    each only within a step it can bridge from the last measurement (a longer silence is a
+    gap: restart later).  A refused one is counted, as set_input does."""
+    m = rl[L_M]
+    w = 1 + m
+    base = MAX_HELD_INPUTS * w
+    n = int(rs[PEND_N])
+    pend = rh[base:base + n * w].reshape(n, w)
+    due = np.empty(n, np.int64)
+    keep = np.empty(n, np.int64)
+    nd = 0
+    nk = 0
+    for i in range(n):
+        if pend[i, 0] <= t:
+            due[nd] = i
+            nd += 1
+        else:
+            keep[nk] = i
+            nk += 1
+    order = due[:nd][np.argsort(pend[due[:nd], 0], kind="mergesort")]
+    chosen = pend[order].copy()
+    rest = pend[keep[:nk]].copy()
+    rh[base:base + nk * w] = rest.ravel()
+    rs[PEND_N] = nk
+    limit = step_limit(c, cfg)
+    for i in range(nd):
+        t_in = chosen[i, 0]
+        if 0.0 <= t_in - rs[T_LAST] <= limit:
+            code = K.advance(kernels, models, st, nx, c, ic, wk, clk, t_in, chosen[i, 1:].copy(),
+                             cfg[0:0])
+            if code != 0:
+                reject(rs, rc, code)
 
 
 @jit
@@ -302,7 +350,8 @@ def process(kernels, models, st, nx, c, ic, wk, clk, rs, rl, rc, rh, cfg, t, y, 
             rs[T_INPUT] = _NAN
             rs[U_OK] = 1.0 if m == 0 else 0.0
         yh = rs[rl[L_HELD_Y]:rl[L_HELD_Y] + p].copy()
-        _sample(kernels, models, st, nx, c, ic, wk, clk, rs, rl, rc, cfg, t_held, yh, ox, oui, oconv)
+        _sample(kernels, models, st, nx, c, ic, wk, clk, rs, rl, rc, rh, cfg, t_held, yh, ox, oui,
+                oconv)
         nh = int(rs[HELD_N])
         rs[HELD_N] = 0.0
         for i in range(nh):
@@ -323,7 +372,8 @@ def process(kernels, models, st, nx, c, ic, wk, clk, rs, rl, rc, rh, cfg, t, y, 
         if outcome == G.REBASE:
             rs[REBASES] += 1.0
             rc[HW_REBASE] += 1
-    return _sample(kernels, models, st, nx, c, ic, wk, clk, rs, rl, rc, cfg, t, y, ox, oui, oconv)
+    return _sample(kernels, models, st, nx, c, ic, wk, clk, rs, rl, rc, rh, cfg, t, y, ox, oui,
+                   oconv)
 
 
 # -- a block ---------------------------------------------------------------------------------
@@ -386,5 +436,5 @@ def new_state(joints: int, rl: np.ndarray, width: int, held_width: int):
     rs[:, [T_LAST, T0, T_INPUT, HELD_T, HELD_TINPUT, LAST_RES]] = _NAN
     rs[:, U_OK] = 1.0 if rl[L_M] == 0 else 0.0
     rc = np.zeros((joints, RC_SIZE), dtype=np.int64)
-    rh = np.zeros((joints, held_width))
+    rh = np.zeros((joints, 2 * held_width))
     return rs, rc, rh

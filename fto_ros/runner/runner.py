@@ -29,7 +29,7 @@ import math
 import time
 from collections import Counter, deque
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -41,6 +41,7 @@ from . import loop as L
 from . import joints as JX
 from . import settings as S
 from ..core import jit as J_
+from .build import changed_names, design_guard
 from .health import FAILURES, HealthWindow
 
 OK, WARN, ERROR = 0, 1, 2
@@ -106,36 +107,43 @@ class Runner:
     Observer families not yet compiled run on the previous runner (runner/legacy.py) behind
     the same interface."""
 
-    def __new__(cls, flat_params: Mapping[str, Any] | None = None):
-        if flat_params is None:                     # copy.deepcopy, _snapshot
+    def __new__(cls, flat_params: Mapping[str, Any] | None = None,
+                changed: Sequence[str] | None = None):
+        if flat_params is None:                     # copy.deepcopy
             return super().__new__(cls)
-        joints = flat_params.get("joints") or []
-        flats = [dict(flat_params)]
-        if isinstance(joints, (list, tuple)) and joints and all(isinstance(j, str) for j in joints):
-            flats = JX.per_joint(flat_params, joints)
-        parts = [S.split(f) for f in flats]
+        with design_guard(flat_params, changed):
+            joints = flat_params.get("joints") or []
+            flats = [dict(flat_params)]
+            if isinstance(joints, (list, tuple)) and joints and all(isinstance(j, str) for j in joints):
+                flats = JX.per_joint(flat_params, joints)
+            parts = [S.split(f) for f in flats]
         obs_class = parts[0][1]
         if cls is Runner and not issubclass(obs_class, KernelObserver):
             if len(flats) > 1:
                 raise ConfigError("joints", f"{obs_class.TYPE} runs one observer at a time until "
                                   "its compiled kernel exists: leave joints empty")
             from .legacy import LegacyRunner
-            return LegacyRunner(flat_params)
+            return LegacyRunner(flat_params, changed)
         self = super().__new__(cls)
         self._split = (flats, parts)
         return self
 
-    def __init__(self, flat_params: Mapping[str, Any] | None = None):
+    def __init__(self, flat_params: Mapping[str, Any] | None = None,
+                 changed: Sequence[str] | None = None):
+        """ConfigError for unusable parameters, whatever fails (build.py): blamed on the
+        ``changed`` names when given (a run-time change), else on the observer's section."""
         if flat_params is None:
             return
         flats, parts = self._split
         del self._split
         self.settings, self.observer_class, self.observer_config = parts[0]
         self.joints = list(self.settings["joints"])
-        self.observers: list[KernelObserver] = [cls(cfg) for _, cls, cfg in parts]
-        self.observer = obs = self.observers[0]
-        S.check_settings(self.settings, obs.n_states, obs.n_outputs, obs.n_inputs)
-        self._roles = self._joint_roles(flats) if self.joints else None
+        with design_guard(flat_params, changed):
+            self.observers: list[KernelObserver] = [cls(cfg) for _, cls, cfg in parts]
+            self.observer = obs = self.observers[0]
+            S.check_settings(self.settings, obs.n_states, obs.n_outputs, obs.n_inputs)
+            self._roles = self._joint_roles(flats) if self.joints else None
+        self._flat = dict(flat_params)
         self._update_us: deque[float] = deque(maxlen=2000)
         J = len(self.observers)
         self._health = [HealthWindow(self.settings["diagnostics.window"]) for _ in range(J)]
@@ -245,16 +253,21 @@ class Runner:
         rs, rc, rh = L.new_state(len(self.observers), rl, width, MAX_HELD_INPUTS * (1 + m))
         if old is not None:
             orl = old._rl
+            same_inputs = orl[L.L_M] == m          # else the old input does not fit: forgotten
             for j in range(rs.shape[0]):
                 o = old._rs[j]
-                for k in (L.T_INPUT, L.U_OK, L.HELD_ON, L.HELD_T, L.HELD_TINPUT, L.HELD_UOK,
-                          L.HELD_KIND, L.HELD_N, L.ACCEPTED, L.REBASES, L.WIN_ACCEPTED,
-                          L.LAST_REJ, L.HAS_OUT, L.LAST_RES, L.LAST_CONV, L.LAST_SINCE, L.LAST_GT):
+                for k in (L.ACCEPTED, L.REBASES, L.WIN_ACCEPTED, L.LAST_REJ, L.HAS_OUT,
+                          L.LAST_RES, L.LAST_CONV, L.LAST_SINCE, L.LAST_GT):
                     rs[j, k] = o[k]
-                for key, w in ((L.L_U, m), (L.L_HELD_Y, p), (L.L_HELD_U, m)):
-                    rs[j, rl[key]:rl[key] + w] = o[orl[key]:orl[key] + w]
+                if same_inputs:
+                    for k in (L.T_INPUT, L.U_OK, L.HELD_ON, L.HELD_T, L.HELD_TINPUT, L.HELD_UOK,
+                              L.HELD_KIND, L.HELD_N):
+                        rs[j, k] = o[k]
+                    for key, w in ((L.L_U, m), (L.L_HELD_Y, p), (L.L_HELD_U, m)):
+                        rs[j, rl[key]:rl[key] + w] = o[orl[key]:orl[key] + w]
             rc[:] = old._rc
-            rh[:] = old._rh
+            if same_inputs:
+                rh[:] = old._rh
         self._rs, self._rc, self._rh = rs, rc, rh
         self._js = self._joint_state_mapping()
         for h in self._health:
@@ -299,7 +312,7 @@ class Runner:
         Raises ConfigError and keeps running the old configuration when the
         new one is unusable.  The observers restart (counted as 'reconfigure').
         """
-        new = Runner(flat_params)
+        new = Runner(flat_params, changed_names(self._flat, flat_params))
         if new.observer_type != self.observer_type:
             raise ConfigError("observer.type", "cannot be changed at run time; restart the node")
         if new.joints != self.joints:
@@ -307,7 +320,7 @@ class Runner:
         new._configure(self)                     # the counters, inputs and held samples go on
         for k in ("settings", "observer_config", "observer", "observers", "_roles", "_arrays",
                   "_prog", "_r", "_nconv", "_cfg", "_rl", "_gate_args", "_rs", "_rc", "_rh",
-                  "_js", "_one"):
+                  "_js", "_one", "_flat"):
             setattr(self, k, getattr(new, k))
         for h in self._health:
             h.window = self.settings["diagnostics.window"]

@@ -10,7 +10,7 @@ from typing import Any, Mapping
 
 from ..core.errors import ConfigError
 from ..observers import REGISTRY, observer_class
-from ..observers.base import Param, resolve
+from ..observers.base import Param, check_size, resolve
 from ..observers.track import TrackObserver
 from ..plant import expand as expand_plant
 from .params_file import flatten, load_params_file, load_params_files  # noqa: F401  (re-exported)
@@ -156,6 +156,8 @@ def split(flat: Mapping[str, Any]) -> tuple[dict[str, Any], type, dict[str, Any]
     expanded first into the chosen observer's explicit parameters (fto_ros.plant); a
     composition (``track``) gets its children's classes and configs in its config.
     """
+    for k, v in flat.items():                  # sizes first: nothing is parsed before
+        check_size(k, v)
     known = {p.name for p in SETTINGS}
     type_name = flat.get("observer.type")
     if type_name is None:
