@@ -40,10 +40,10 @@ classes with a kernel each, registered once as ``single_delay``: constructing
 
 Before t0 + tau the estimate is the open-loop copy xh1 (no guarantee yet).
 
-The delay ring has a fixed capacity (kernel.py): it keeps a window of up to 4096 entries
-whole (1 kHz for tau up to 4 s); a faster stream is thinned to entries tau / 4096 apart (24
-us for tau = 0.1 s), the read at t - tau then interpolates between them (fourth order), and
-memory per observer stays fixed whatever the rate.
+The delay ring has a fixed capacity (kernel.py): it keeps a window of up to
+WINDOW_ENTRIES = 4096 entries whole (1 kHz for tau up to 4 s); a faster stream is thinned to
+entries tau / 4096 apart (24 us for tau = 0.1 s), the read at t - tau then interpolates
+between them (fourth order), and memory per observer stays fixed whatever the rate.
 """
 from __future__ import annotations
 
@@ -184,15 +184,20 @@ class SingleDelayObserver(KernelObserver):
         mats = {SD.C_PMAP: self.Pmap, SD.C_MD: ext["Md"], SD.C_MDA: ext["MdA"],
                 SD.C_MDB: ext["MdB"], SD.C_ME: ext["Me"], SD.C_R: ext["R"], SD.C_A2: self.A2}
         mats.update(self._form_matrices())
+        window = self.WINDOW_ENTRIES
         scalars = (self.k, self.tau, self.tau / continuous.FILL_POINTS, self.substep,
-                   self.tau / SD.WINDOW_ENTRIES)
+                   self.tau / window, window)
         c, ic, wk, size = SD.build(n1, q, m, self.foh_input, self.sampled, self._max_step(),
-                                   scalars, mats, self._caches(), SD.ring_capacity(form.PUSHES),
+                                   scalars, mats, self._caches(), SD.ring_capacity(window, form.PUSHES),
                                    form.scratch_floats(n1, q, m))
         ys, us = self.F.y_syms, self.F.u_syms
         self._build_kernel(c, ic, wk, size, models=(ModelFunction(self.F.exprs, [[], ys, us]),))
         self._st[K.GUARANTEED] = self.tau
         self._restart(None)
+
+    #: entries of one delay window the ring keeps whole; a faster stream is thinned to
+    #: entries tau / WINDOW_ENTRIES apart (the ring's memory is fixed: kernel.py)
+    WINDOW_ENTRIES = 4096
 
     # -- what the forms differ in ------------------------------------------------------
     FORM = ""

@@ -8,7 +8,7 @@ State:  header | x_hat (n) | z (N) | omega (q) | y (q) | u (m) | xi_e (n1) | w (
         predictor (z and omega adjacent: its state Z); y, u the last sample's (u: the input
         in force); w = [F1, F2, Y] of the last sample (W = n1 + 2q, continuous form); xi2_0
         the xh2 a restart from an estimate gives.
-Consts: header | k, tau, fill step, substep, ring min gap | Pmap (n x n), Md (n1 x N),
+Consts: header | k, tau, fill step, substep, ring min gap, ring window | Pmap (n x n), Md (n1 x N),
         MdA (n1 x N), MdB (n1 x W), Me (n1 x N), R (n1 x q), A2 (q x n1), then the form's
         own: continuous Az (N x N), Bz (N x W), Mo (3 n1 x (N + W)); sampled the predictor's
         (A, B) before and after t0 + tau ((N + q) x (N + q), (N + q) x (2 n1 + q)).
@@ -20,11 +20,11 @@ Work:   the step cache(s) (core/step_cache.py), the delay ring (core/delay_buffe
         part first: COMMON_SCRATCH floats).
 Models: [F(y, u) = (F1, F2 + k y)] (n1 + q terms; the sampled form evaluates it at omega).
 
-The ring keeps every entry of one delay window up to WINDOW_ENTRIES of them; beyond, pushes
-closer than tau / WINDOW_ENTRIES to the newest are skipped (thinned, core/delay_buffer.py).
-Each sample trims what lies before its read at s - tau, so at most 2 WINDOW_ENTRIES + 2
-committed entries remain (+1 for rounding), plus what one sample pushes: the capacity
-(RING_SLACK covers the rounding and the one entry at or before the read).
+The ring keeps every entry of one delay window up to E = c[WINDOW] of them (the adapter's
+WINDOW_ENTRIES); beyond, pushes closer than tau / E to the newest are skipped (thinned,
+core/delay_buffer.py).  Each sample trims what lies before its read at s - tau, so at most
+2 E + 2 committed entries remain (+1 for rounding), plus what one sample pushes: the
+capacity (RING_SLACK covers the rounding).
 """
 from __future__ import annotations
 
@@ -40,14 +40,13 @@ from ...core.reasons import CODE
 from ...core.step_cache import cache_init
 from .. import kernel as K
 
-#: entries of one delay window the ring keeps whole; beyond, it thins to tau / this apart
-WINDOW_ENTRIES = 4096
 RING_SLACK = 8
 
 
-def ring_capacity(pushes: int) -> int:
-    """The ring's entries for a form that pushes at most ``pushes`` per sample."""
-    return 2 * WINDOW_ENTRIES + RING_SLACK + pushes
+def ring_capacity(window: int, pushes: int) -> int:
+    """The ring's entries for a window of ``window`` entries and a form that pushes at most
+    ``pushes`` per sample."""
+    return 2 * window + RING_SLACK + pushes
 
 _I = K.IC_HEADER
 N1, Q, M, FOH = range(_I, _I + 4)
@@ -57,7 +56,7 @@ C_PMAP, C_MD, C_MDA, C_MDB, C_ME, C_R, C_A2, C_A, C_B, C_A_AFTER, C_B_AFTER, C_M
 W_RING, W_CAP, W_CACHE, W_CACHE_AFTER, W_SLOTS, W_SCRATCH = range(_I + 26, _I + 32)
 IC_SIZE = _I + 32
 # float constants after the protocol's header
-K_, TAU, FILL_STEP, SUBSTEP, MIN_GAP = range(K.C_HEADER, K.C_HEADER + 5)
+K_, TAU, FILL_STEP, SUBSTEP, MIN_GAP, WINDOW = range(K.C_HEADER, K.C_HEADER + 6)
 
 NON_FINITE_TERM = CODE["non_finite_model_term"]
 NON_FINITE = CODE["non_finite_estimate"]
@@ -66,9 +65,10 @@ CONVERGED_SLACK = 1e-9
 
 
 def build(n1, q, m, foh, advance, max_step, scalars, mats, caches, ring_cap, scratch):
-    """(c, ic, wk, state size) of a kernel (``advance``: it takes ADVANCE): ``scalars`` (k, tau, fill step, substep, min gap),
-    ``mats`` {C_ index: matrix} in order, ``caches`` [(W_ index, slots, floats)], the ring's
-    capacity and the form's scratch floats (after COMMON_SCRATCH)."""
+    """(c, ic, wk, state size) of a kernel (``advance``: it takes ADVANCE): ``scalars`` (k,
+    tau, fill step, substep, ring min gap, ring window), ``mats`` {C_ index: matrix} in
+    order, ``caches`` [(W_ index, slots, floats)], the ring's capacity and the form's scratch
+    floats (after common_scratch)."""
     n, N, W = n1 + q, 3 * n1 + q, n1 + 2 * q
     ic = np.zeros(IC_SIZE, dtype=np.int64)
     ic[:_I] = K.layout_ic(n, K.HEADER, has_advance=advance)
@@ -185,7 +185,7 @@ def push_entry(st, nx, c, ic, wk, t, dl, ddl):
     """Push (t, dl, dl') onto the candidate's ring, sparing the committed entries (skipped
     when t is closer than the min gap to the newest entry)."""
     ring_push(wk, ic[W_RING], ic[W_CAP], ic[N1], nx[ic[S_RING]:ic[S_RING] + 3],
-              int(st[ic[S_RING] + START]), t, dl, ddl, c[MIN_GAP], WINDOW_ENTRIES)
+              int(st[ic[S_RING] + START]), t, dl, ddl, c[MIN_GAP], int(c[WINDOW]))
 
 
 @jit
