@@ -47,6 +47,7 @@ between them (fourth order), and memory per observer stays fixed whatever the ra
 """
 from __future__ import annotations
 
+import abc
 import math
 import warnings
 
@@ -58,7 +59,7 @@ from ...core.linear import observability_rank
 from ...core.model_code import ModelFunction
 from .. import kernel as K
 from ..base import ConfigError, KernelObserver, Param, matrix
-from . import continuous, sampled
+from . import continuous as continuous_form, sampled as sampled_form
 from . import kernel as SD
 from .design import design, extension, noise_bound_constant, predictor, readout, theorem2_mu
 
@@ -185,7 +186,7 @@ class SingleDelayObserver(KernelObserver):
                 SD.C_MDB: ext["MdB"], SD.C_ME: ext["Me"], SD.C_R: ext["R"], SD.C_A2: self.A2}
         mats.update(self._form_matrices())
         window = self.WINDOW_ENTRIES
-        scalars = (self.k, self.tau, self.tau / continuous.FILL_POINTS, self.substep,
+        scalars = (self.k, self.tau, self.tau / continuous_form.FILL_POINTS, self.substep,
                    self.tau / window, window)
         c, ic, wk, size = SD.build(n1, q, m, self.foh_input, self.sampled, self._max_step(),
                                    scalars, mats, self._caches(), SD.ring_capacity(window, form.PUSHES),
@@ -203,14 +204,17 @@ class SingleDelayObserver(KernelObserver):
     FORM = ""
     sampled = False
 
+    @abc.abstractmethod
     def _form_matrices(self) -> dict:
-        raise NotImplementedError
+        """{C_ index: matrix} of the form's own constants."""
 
+    @abc.abstractmethod
     def _caches(self) -> list:
-        raise NotImplementedError
+        """[(W_ index, slots, floats)] of the form's step caches."""
 
+    @abc.abstractmethod
     def _max_step(self) -> float:
-        raise NotImplementedError
+        """The longest interval the form bridges with bounded work (s)."""
 
     # -- what the state says ---------------------------------------------------------
     @property
@@ -250,7 +254,7 @@ class SingleDelayObserver(KernelObserver):
 class ContinuousSingleDelay(SingleDelayObserver):
     """Theorem 1: Y at every sample (continuous.py)."""
 
-    KERNEL = continuous
+    KERNEL = continuous_form
     FORM = "continuous (Theorem 1)"
 
     def _form_matrices(self):
@@ -258,7 +262,7 @@ class ContinuousSingleDelay(SingleDelayObserver):
         return {SD.C_A: ext["Az"], SD.C_B: ext["Bz"], SD.C_MO: readout(ext)}
 
     def _caches(self):
-        return [(SD.W_CACHE, continuous.SLOTS, continuous.cache_size(self.n1, self.q))]
+        return [(SD.W_CACHE, continuous_form.SLOTS, continuous_form.cache_size(self.n1, self.q))]
 
     def _max_step(self):
         return math.inf
@@ -268,7 +272,7 @@ class SampledSingleDelay(SingleDelayObserver):
     """Theorem 2: Y at sparse instants, the predictor between them (sampled.py); the
     runner's input messages advance it (ADVANCE)."""
 
-    KERNEL = sampled
+    KERNEL = sampled_form
     FORM = "sampled (Theorem 2)"
     sampled = True
 
@@ -279,8 +283,9 @@ class SampledSingleDelay(SingleDelayObserver):
                 SD.C_B_AFTER: after[1]}
 
     def _caches(self):
-        size = sampled.cache_size(self.n1, self.q)
-        return [(SD.W_CACHE, sampled.SLOTS, size), (SD.W_CACHE_AFTER, sampled.SLOTS, size)]
+        size = sampled_form.cache_size(self.n1, self.q)
+        return [(SD.W_CACHE, sampled_form.SLOTS, size),
+                (SD.W_CACHE_AFTER, sampled_form.SLOTS, size)]
 
     def _max_step(self):
         # the predictor sub-steps the interval: at most MAX_SUBSTEPS of them
@@ -289,4 +294,4 @@ class SampledSingleDelay(SingleDelayObserver):
     @property
     def last_substeps(self) -> int:
         """Predictor sub-steps the last call took (bounded by MAX_SUBSTEPS)."""
-        return sampled.last_substeps(self._wk, self._ic)
+        return sampled_form.last_substeps(self._wk, self._ic)

@@ -8,16 +8,16 @@ State:  header | x_hat (n) | z (N) | omega (q) | y (q) | u (m) | xi_e (n1) | w (
         predictor (z and omega adjacent: its state Z); y, u the last sample's (u: the input
         in force); w = [F1, F2, Y] of the last sample (W = n1 + 2q, continuous form); xi2_0
         the xh2 a restart from an estimate gives.
-Consts: header | k, tau, fill step, substep, ring min gap, ring window | Pmap (n x n), Md (n1 x N),
-        MdA (n1 x N), MdB (n1 x W), Me (n1 x N), R (n1 x q), A2 (q x n1), then the form's
-        own: continuous Az (N x N), Bz (N x W), Mo (3 n1 x (N + W)); sampled the predictor's
+Consts: header | k, tau, fill step, substep, ring min gap, ring window | Pmap (n x n),
+        Md (n1 x N), MdA (n1 x N), MdB (n1 x W), Me (n1 x N), R (n1 x q), A2 (q x n1), then
+        the form's own: continuous Az (N x N), Bz (N x W), Mo (3 n1 x (N + W)); sampled the predictor's
         (A, B) before and after t0 + tau ((N + q) x (N + q), (N + q) x (2 n1 + q)).
 Ints:   header | n1, q, m, foh | offsets of the state blocks, of the matrices in c, of the
-        ring, the step cache(s) and the scratch in wk | cache slots, ring capacity
+        ring, the step cache(s) and the scratch in wk | cache slots (each), ring capacity
 Work:   the step cache(s) (core/step_cache.py), the delay ring (core/delay_buffer.py: the
         delayed combination dl = Md z and its derivative, indices in the state: a rejected
         sample takes its pushes back with its candidate state), the scratch (this module's
-        part first: COMMON_SCRATCH floats).
+        part first: common_scratch() floats).
 Models: [F(y, u) = (F1, F2 + k y)] (n1 + q terms; the sampled form evaluates it at omega).
 
 The ring keeps every entry of one delay window up to E = c[WINDOW] of them (the adapter's
@@ -40,14 +40,6 @@ from ...core.reasons import CODE
 from ...core.step_cache import cache_init
 from .. import kernel as K
 
-RING_SLACK = 8
-
-
-def ring_capacity(window: int, pushes: int) -> int:
-    """The ring's entries for a window of ``window`` entries and a form that pushes at most
-    ``pushes`` per sample."""
-    return 2 * window + RING_SLACK + pushes
-
 _I = K.IC_HEADER
 N1, Q, M, FOH = range(_I, _I + 4)
 S_Z, S_OM, S_Y, S_U, S_XI, S_W, S_X2I, S_HAS_X2I, S_T, S_RING = range(_I + 4, _I + 14)
@@ -60,8 +52,16 @@ K_, TAU, FILL_STEP, SUBSTEP, MIN_GAP, WINDOW = range(K.C_HEADER, K.C_HEADER + 6)
 
 NON_FINITE_TERM = CODE["non_finite_model_term"]
 NON_FINITE = CODE["non_finite_estimate"]
-#: a read at t - tau needs this much model time: the converged test
+#: the estimate is the paper's (13), reading the ring at s - tau, from s >= tau - this on
 CONVERGED_SLACK = 1e-9
+#: ring entries beyond the 2 E + 2 of one window and one sample's pushes (rounding)
+RING_SLACK = 8
+
+
+def ring_capacity(window: int, pushes: int) -> int:
+    """The ring's entries for a window of ``window`` entries and a form that pushes at most
+    ``pushes`` per sample."""
+    return 2 * window + RING_SLACK + pushes
 
 
 def build(n1, q, m, foh, advance, max_step, scalars, mats, caches, ring_cap, scratch):
@@ -102,7 +102,7 @@ def build(n1, q, m, foh, advance, max_step, scalars, mats, caches, ring_cap, scr
 @jit
 def common_scratch(n1, q, m):
     """Floats of the scratch this module's helpers use (at the start of the scratch)."""
-    return (n1 + q) + 3 * n1 + (n1 + 2 * q)
+    return (n1 + q) + 3 * n1
 
 
 @jit
@@ -144,17 +144,12 @@ def model_w(models, x, y, u, out, q):
 
 @jit
 def _common(wk, ic):
-    """The shared scratch: the published vector (n), three n1 vectors, a w (W)."""
+    """The shared scratch: the published vector (n), three n1 vectors."""
     n1, q = ic[N1], ic[Q]
     o = ic[W_SCRATCH]
     vec = wk[o:o + n1 + q]
     o += n1 + q
-    d1 = wk[o:o + n1]
-    d2 = wk[o + n1:o + 2 * n1]
-    d3 = wk[o + 2 * n1:o + 3 * n1]
-    o += 3 * n1
-    w = wk[o:o + n1 + 2 * q]
-    return vec, d1, d2, d3, w
+    return vec, wk[o:o + n1], wk[o + n1:o + 2 * n1], wk[o + 2 * n1:o + 3 * n1]
 
 
 @jit
@@ -171,7 +166,7 @@ def push(st, nx, c, ic, wk, t, z, w):
     n1, q = ic[N1], ic[Q]
     N = 3 * n1 + q
     W = n1 + 2 * q
-    vec, d1, d2, d3, w_ = _common(wk, ic)
+    vec, d1, d2, d3 = _common(wk, ic)
     mv(mat(c, ic[C_MD], n1, N), z, d1)
     mv(mat(c, ic[C_MDA], n1, N), z, d2)
     mv(mat(c, ic[C_MDB], n1, W), w, d3)
@@ -198,7 +193,7 @@ def publish(nx, c, ic, wk, xi2):
     """x_hat = Pmap [xi_e; xi2]."""
     n1, q = ic[N1], ic[Q]
     n = n1 + q
-    vec, d1, d2, d3, w = _common(wk, ic)
+    vec, d1, d2, d3 = _common(wk, ic)
     vec[:n1] = nx[ic[S_XI]:ic[S_XI] + n1]
     vec[n1:] = xi2
     mv(mat(c, ic[C_PMAP], n, n), vec, nx[K.HEADER:K.HEADER + n])
