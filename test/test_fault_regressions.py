@@ -17,9 +17,12 @@ import pytest
 
 from faultkit import committed_configs, runner_for, stream_for
 from fto_ros.bag import BagReader, BagWriter
+from fto_ros.core import jit
 from fto_ros.core.errors import ConfigError
 from fto_ros.models import dc_motor
 from fto_ros.models.simulate import simulate, uniform_grid
+from fto_ros.observers import kernel as kernel_protocol
+from fto_ros.observers.single_delay import continuous as single_delay_kernel
 from fto_ros.replay import cli as replay_cli
 from fto_ros.runner import ERROR, OK, Output, Runner
 from fto_ros.runner.params_file import load_params_files
@@ -100,26 +103,27 @@ def test_sampled_single_delay_bounds_the_work_after_a_silence():
     (1 s: 0.73 s of CPU, 100 s: over 10 s, a stamp of 1e300: never)."""
     cfg = CONFIGS["dc_motor_single_delay_sampled"]
     s = stream_for(cfg)
-    steps = {"n": 0}
+    u = s.events[1][2] if s.events[1][1] == "u" else [1.0]
     for gap in (1.0, 100.0, 1e300):
         r = runner_for(cfg)
         obs = r.observer
-        for st in (obs.stepper_before, obs.stepper_after):
-            real = st.step
-
-            def counted(*a, _real=real):
-                steps["n"] += 1
-                return _real(*a)
-            st.step = counted
         for t, k, v in s.events[:400]:
             r.set_input(t, v) if k == "u" else r.process(t, v)
-        steps["n"] = 0
         t_last = s.events[399][0]
-        res = r.set_input(t_last + gap, s.events[1][2] if s.events[1][1] == "u" else [1.0])
-        # at most MAX_SUBSTEPS predictor sub-steps (2 steps each, Heun): bounded work
-        assert steps["n"] <= 2 * 1000 + 2, (gap, steps["n"])
+        s_before = obs._s
+        res = r.set_input(t_last + gap, u)
         assert res in (None, "input_bad_stamp")
         assert (res == "input_bad_stamp") == (gap > 2 ** 31)
+        assert obs._s == s_before                  # beyond what the predictor bridges
+        if gap > 2 ** 31:
+            continue
+        # the observer's own bound, without the runner's: a longer interval is not
+        # integrated, the longest it bridges takes at most MAX_SUBSTEPS sub-steps
+        obs.advance(t_last + gap, u)
+        assert obs._s == s_before
+        obs.advance(t_last + 0.9 * obs.max_step, u)
+        assert obs._s > s_before
+        assert 0 < obs.last_substeps <= 1000, obs.last_substeps
 
 
 def test_sampled_single_delay_input_hold_foh_is_used():
@@ -162,34 +166,42 @@ def test_replay_across_a_forward_jump_of_the_log_time(motor, tmp_path, capsys):
     assert m["output_topics"]["/diagnostics"] <= 6      # ~2 s of bag, not 1e6 statuses
 
 
+_SINGLE_DELAY = jit.kernel(single_delay_kernel.kernel, jit.KERNEL)
+
+
+def _failing_kernel(op, st, nx, c, ic, wk, a, b, y, u, models):
+    """The single_delay kernel with a bug: the STEP its countdown (the last float of the work
+    memory) reaches zero at commits a NaN estimate."""
+    code = _SINGLE_DELAY(op, st, nx, c, ic, wk, a, b, y, u, models)
+    if op == jit.STEP:
+        wk[wk.shape[0] - 1] -= 1.0
+        if wk[wk.shape[0] - 1] == 0.0:
+            nx[ic[kernel_protocol.EST] + 1] = math.nan
+    return code
+
+
 def test_diagnostics_error_clears_after_clean_data_and_after_reset(motor):
-    """Was: one observer_error restart kept /diagnostics at ERROR for good."""
+    """Was: one observer failure (an observer_error restart then, a non-finite estimate from
+    a compiled kernel now) kept /diagnostics at ERROR for good."""
     t, sim = motor
     r = Runner(dict(load_params_files(params_files(SD)), **{"diagnostics.window": 0.5}))
     obs = r.observer
-    real = obs.update_checked
-    boom = {"at": 300}
-
-    def flaky(tt, y, u):
-        if boom["at"] == 0:
-            boom["at"] = -1
-            raise RuntimeError("a bug in an observer")
-        boom["at"] -= 1
-        return real(tt, y, u)
-    obs.update_checked = flaky
+    obs._wk = np.append(obs._wk, 301.0)             # the bug's countdown, in the work memory
+    obs._kernels = jit.function_list([jit.kernel(_failing_kernel, jit.KERNEL)], jit.KERNELS)
+    r._bind()
     levels = []
     for k in range(len(t)):
         r.set_input(t[k], sim.u_k[k])
         r.process(t[k], sim.y[k])
         if k % 100 == 99:
             levels.append(r.status(t[k]).level)
-    assert r.resets["observer_error"] == 1
+    assert r.resets["non_finite_state"] == 1
     assert ERROR in levels[2:5]                        # the failure at 0.3 s shows ...
     assert levels[-1] == OK and levels[-5:] == [OK] * 5  # ... and clears 0.5 s later
     # a ~/reset clears it at once
-    boom["at"] = 0
+    obs._wk[-1] = 1.0
     r.set_input(t[-1] + 1e-3, sim.u_k[-1])
-    assert r.process(t[-1] + 1e-3, 2 * sim.y[-1] - sim.y[-2]) == "observer_error"
+    assert r.process(t[-1] + 1e-3, 2 * sim.y[-1] - sim.y[-2]) == "non_finite_estimate"
     assert r.status(t[-1] + 2e-3).level == ERROR
     r.reset()
     assert r.status(t[-1] + 3e-3).level != ERROR

@@ -858,7 +858,7 @@ def test_sampled_advance_matches_prediction_without_inputs(sparse):
     b = make("single_delay_sampled")
     for r in (a, b):
         drive(r, s, 0, 100)
-    u = a._u.copy()
+    u = next(s.u[j] for _, kind, j in reversed(s.events[:s.after[99]]) if kind == 0).copy()
     t0, t1 = s.t[99], s.t[100]
     for f in (0.2, 0.5, 0.9):
         a.set_input(t0 + f * (t1 - t0), u)
