@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Sequence
 
 import sympy
+from sympy.printing.precedence import precedence
 from sympy.printing.pycode import PythonCodePrinter
 
 from . import jit as J
@@ -49,6 +50,15 @@ class _Printer(PythonCodePrinter):
 
     def _print_ceiling(self, e):
         return f"float(math.ceil({self._print(e.args[0])}))"
+
+    def _print_Pow(self, e, rational=False):
+        # an integer exponent as a float: numba raises x**3 by repeated products, x**3.0 with
+        # libm's pow, which is what Python does for both (the bits of the lambdified terms)
+        if e.exp.is_Integer and abs(int(e.exp)) > 1:
+            base = self.parenthesize(e.base, precedence(e), strict=False)
+            exp = float(e.exp)
+            return f"{base}**{exp!r}" if exp > 0 else f"{base}**({exp!r})"
+        return super()._print_Pow(e, rational=rational)
 
 
 def cache_dir() -> Path:
