@@ -303,6 +303,17 @@ class Differentiator:
         self._pred_view = rows[:, self._nf:NT]
         self._pred_view.flags.writeable = False
 
+    # a copy (deepcopy, pickle) views its own copy of the state: numpy copies a view as an
+    # independent array, which would leave the estimates frozen at the time of the copy
+    _VIEWS = ("_rows", "_view", "_pred_view")
+
+    def __getstate__(self):
+        return {k: v for k, v in self.__dict__.items() if k not in self._VIEWS}
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._bind(self._st, self._so)
+
     def on(self, st: np.ndarray, offset: int) -> "Differentiator":
         """This differentiator with its state at ``st[offset:offset + state_size]`` (an
         observer's state, which its kernel steps): a view that reads and writes there."""

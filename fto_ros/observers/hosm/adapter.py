@@ -42,6 +42,7 @@ import numpy as np
 from ...core import differentiator as red
 from ...core.discretize import MAX_SUBSTEPS
 from ...core.expressions import VectorFunction
+from ...core.layout import Layout
 from ...core.linear import place_observer_poles
 from ...core.model_code import ModelFunction
 from ...core.step_cache import cache_floats, cache_init
@@ -51,31 +52,6 @@ from ..base import ConfigError, KernelObserver, Param, matrix
 from . import kernel as K
 
 P = "hosm."
-
-
-class _Layout:
-    """Offsets of the blocks of one of the kernel's flat arrays, in the order taken."""
-
-    def __init__(self, head: int):
-        self.data: list[float] = [0.0] * head
-
-    @property
-    def size(self) -> int:
-        return len(self.data)
-
-    def take(self, size: int) -> int:
-        """Reserve ``size`` floats; their offset."""
-        self.data += [0.0] * int(size)
-        return len(self.data) - int(size)
-
-    def put(self, values) -> int:
-        """Append ``values`` (flattened, row-major); their offset."""
-        flat = np.ascontiguousarray(values, dtype=float).ravel().tolist()
-        self.data += flat
-        return len(self.data) - len(flat)
-
-    def array(self) -> np.ndarray:
-        return np.array(self.data, dtype=float)
 
 
 def _fmt(z: np.ndarray) -> str:
@@ -232,14 +208,14 @@ class HosmObserver(KernelObserver):
         # F(y, u) without u: one evaluation per sample serves both ends of the step
         f_has_u = any(e.free_symbols & set(self.F.u_syms) for e in self.F.exprs)
         ncol = n + 2 * (m + p) + (0 if fzero else 2 * n)
-        c, ic = _Layout(1), {}                       # c[MAX_STEP] first
+        c, ic = Layout(1), {}                       # c[MAX_STEP] first
         for key, mat in ((K.CA, self.A), (K.CBW, np.hstack([self.B, np.eye(n), self.L])),
                          (K.CC, self.C), (K.CCPINV, np.linalg.pinv(self.C)),
                          (K.CTINV1, st.Tinv[:, :r]), (K.CTINV2, st.Tinv[:, r:]),
                          (K.CQINV, np.linalg.inv(st.Q)), (K.CG, st.G), (K.CA22, st.A22),
                          (K.CA21, st.A21)):
             ic[key] = c.put(mat)
-        s = _Layout(KP.HEADER)
+        s = Layout(KP.HEADER)
         s.take(n + (p if self.identify else 0))     # x_hat, zeta
         for key, size in ((K.SZ, n), (K.SYT, p), (K.SY, p), (K.SU, m), (K.SF, n),
                           (K.SOM1, r), (K.SOM2, nz), (K.SHASX0, 1), (K.SX0, n)):
@@ -254,7 +230,7 @@ class HosmObserver(KernelObserver):
                         s.take(d.state_size)]
             scratch = max(scratch, d.scratch_size)
         slots = 256
-        w = _Layout(0)
+        w = Layout(0)
         ic[K.WK], ic[K.KSLOTS] = w.take(cache_floats(slots, 1 + n * ncol)), slots
         ic[K.WZ], ic[K.ZSLOTS] = w.take(cache_floats(slots, nz * (nz + 2 * r))), slots
         for key, size in ((K.WT1, n), (K.WTH, r + nz), (K.WGT, p), (K.WVB, p), (K.WF1, n),
@@ -265,7 +241,7 @@ class HosmObserver(KernelObserver):
         cache_init(wk, ic[K.WK], slots)
         cache_init(wk, ic[K.WZ], slots)
         ints = [n, p, m, r, nz, int(self.identify), int(self.foh_input), int(fzero),
-                int(f_has_u), ncol] + [ic[k] for k in range(K.CA, K.PER_OUT)] + [K.PER_OUT + 1]
+                int(f_has_u), ncol] + [ic[key] for key in range(K.CA, K.PER_OUT)] + [K.PER_OUT + 1]
         icv = KP.layout_ic(n, KP.HEADER, n_ui=p if self.identify else 0, ui=KP.HEADER + n,
                            extra_ints=ints + per_out)
         # differentiator sub-steps (differentiator_max_step) are bounded in number
