@@ -56,6 +56,9 @@ second-derivative error by 1.8-2.5 (order 2 and 3; test/test_differentiator.py).
 
 Errors: bad constructor arguments, a bad step or sample, or a step whose result
 would not be finite raise ValueError and leave the state untouched.
+
+This module designs a differentiator; its step is compiled (core/differentiator_step.py:
+every channel with the same arithmetic, the observers' kernels embed it in their state).
 """
 from __future__ import annotations
 

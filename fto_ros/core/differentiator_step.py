@@ -42,6 +42,26 @@ def state_size(NT: int, channels: int) -> int:
 
 
 @jit
+def _powers(h, NT, hp):
+    """hp = 1, h, h^2, ... by repeated products."""
+    hp[0] = 1.0
+    for k in range(1, NT):
+        hp[k] = h if k == 1 else hp[k - 1] * h
+
+
+@jit
+def _shifted(c, mo, NT, p, v, hp):
+    """v_p + sum_(q > p) M[p, q] h^(q-p) v_q, M the upper triangular NT x NT matrix at
+    c[mo:], zero entries skipped (the Taylor shift or its inverse, in h-scaled form)."""
+    acc = v[p]
+    for q in range(p + 1, NT):
+        mpq = c[mo + p * NT + q]
+        if mpq != 0.0:
+            acc += mpq * hp[q - p] * v[q]
+    return acc
+
+
+@jit
 def _step(c, co, z, fp, h, out, hp, ih, wp):
     """out = one step of the recursion from z with the sample fp over h (out, z distinct)."""
     NT = int(c[co])
@@ -51,9 +71,7 @@ def _step(c, co, z, fp, h, out, hp, ih, wp):
     Kg = A + NT * NT
     bb = Kg + NT * NT
     cc = bb + NT
-    hp[0] = 1.0
-    for k in range(1, NT):
-        hp[k] = h if k == 1 else hp[k - 1] * h
+    _powers(h, NT, hp)
     if scheme == MATCHED:
         e = fp - z[0] if nf == 0 else -z[0]
         a = e if e >= 0.0 else -e
@@ -65,11 +83,7 @@ def _step(c, co, z, fp, h, out, hp, ih, wp):
         for k in range(1, NT):
             ih[k] = 1.0 / h if k == 1 else ih[k - 1] * ih[1]
         for p in range(NT):
-            acc = z[p]
-            for q in range(p + 1, NT):
-                apq = c[A + p * NT + q]
-                if apq != 0.0:
-                    acc += apq * hp[q - p] * z[q]
+            acc = _shifted(c, A, NT, p, z, hp)
             g = 0.0
             have = False
             for m in range(NT):
@@ -91,15 +105,10 @@ def _step(c, co, z, fp, h, out, hp, ih, wp):
     for i in range(NT - 2, -1, -1):
         wp[i] = wp[i + 1] * qv
     for p in range(NT):
-        acc = z[p]
         if scheme == EULER:
-            if p + 1 < NT:
-                acc += h * z[p + 1]
+            acc = z[p] + h * z[p + 1] if p + 1 < NT else z[p]
         else:
-            for q in range(p + 1, NT):
-                apq = c[A + p * NT + q]
-                if apq != 0.0:
-                    acc += apq * hp[q - p] * z[q]
+            acc = _shifted(c, A, NT, p, z, hp)
         out[p] = acc + c[cc + p] * wp[p]
 
 
@@ -108,16 +117,9 @@ def _back(c, co, n, h, out, hp):
     """out = Phi(h)^-1 n: shift the chain n back over h (the current estimate)."""
     NT = int(c[co])
     bk = co + HEAD + 2 * NT * NT + 2 * NT
-    hp[0] = 1.0
-    for k in range(1, NT):
-        hp[k] = h if k == 1 else hp[k - 1] * h
+    _powers(h, NT, hp)
     for p in range(NT):
-        acc = n[p]
-        for q in range(p + 1, NT):
-            b = c[bk + p * NT + q]
-            if b != 0.0:
-                acc += b * hp[q - p] * n[q]
-        out[p] = acc
+        out[p] = _shifted(c, bk, NT, p, n, hp)
 
 
 @jit

@@ -44,7 +44,8 @@ from ..kernel import HEADER, HEALTH, IC_HEADER, RESIDUAL
 (N, P, M, R, NZ, IDENT, FOH, FZERO, FHASU, NCOL,
  CA, CBW, CC, CCPINV, CTINV1, CTINV2, CQINV, CG, CA22, CA21,
  SZ, SYT, SY, SU, SF, SOM1, SOM2, SHASX0, SX0,
- WK, KSLOTS, WZ, ZSLOTS, WT1, WTH, WGT, WVB, WF1, WV, WR, PER_OUT) = range(IC_HEADER, IC_HEADER + 41)
+ WK, KSLOTS, WZ, ZSLOTS, WT1, WTH, WGT, WVB, WF1, WV, WR,
+ PER_OUT) = range(IC_HEADER, IC_HEADER + 41)
 #: per-output integers, from ic[PER_OUT] on: order, om1 block start, block length,
 #: descriptor offset, state offset
 OUT_WIDTH = 5
@@ -90,6 +91,13 @@ else:
 def _mat(c, ic, key, rows, cols):
     o = ic[key]
     return c[o:o + rows * cols].reshape(rows, cols)
+
+
+@jit
+def _put(v, o, a):
+    """v[o:o + len(a)] = a; the offset after it."""
+    v[o:o + a.shape[0]] = a
+    return o + a.shape[0]
 
 
 @jit
@@ -217,22 +225,15 @@ def _step(st, nx, c, ic, wk, h, y, u, models):
     if wk[off] == 0.0:
         return _SINGULAR
     v = wk[ic[WV]:ic[WV] + ncol]
-    o = 0
-    v[o:o + n] = st[ic[SZ]:ic[SZ] + n]
-    o += n
-    v[o:o + m] = u0
-    o += m
+    o = _put(v, 0, st[ic[SZ]:ic[SZ] + n])
+    o = _put(v, o, u0)
     if not ic[FZERO]:
-        v[o:o + n] = F0
-        o += n
-    v[o:o + p] = st[ic[SYT]:ic[SYT] + p]
-    o += p
-    v[o:o + m] = u_end
-    o += m
+        o = _put(v, o, F0)
+    o = _put(v, o, st[ic[SYT]:ic[SYT] + p])
+    o = _put(v, o, u_end)
     if not ic[FZERO]:
-        v[o:o + n] = F1
-        o += n
-    v[o:o + p] = y
+        o = _put(v, o, F1)
+    _put(v, o, y)
     z = nx[ic[SZ]:ic[SZ] + n]
     matvec(wk[off + 1:off + size].reshape(n, ncol), v, z)
     ytil = nx[ic[SYT]:ic[SYT] + p]

@@ -246,7 +246,7 @@ class NewtonInversionObserver(KernelObserver):
         w = Layout(0)
         ic[K.WFC], ic[K.FSLOTS] = w.take(cache_floats(slots, k * (k + 2))), slots
         for key, size in ((K.WREJ, 1), (K.WEV, 2 * n + n * n), (K.WUE, m * (n + 1)),
-                          (K.WT, 6 * n), (K.WFT, k * k + k * ne),
+                          (K.WT, 6 * n), (K.WW, n * n), (K.WFT, k * k + k * ne),
                           (K.WR, max(dy.scratch_size, du.scratch_size if du else 0))):
             ic[key] = w.take(size)
         wk = np.zeros(w.size)

@@ -14,7 +14,7 @@ Consts:  header | x_hat(0) (n) | mu, alpha, delay | Dy's descriptor | Du's descr
          the filter: A (k x k), B (k), C (k), D, its state at rest for a unit input (k)
 Ints:    header | the sizes, flags and offsets below (names = index constants)
 Work:    the filter's step cache, the rejection counter, the map's values (n + n^2 + n),
-         u_e (m (n + 1)), temporaries (6 n), cond/solve scratch, the filter's scratch,
+         u_e (m (n + 1)), temporaries (6 n), cond/solve scratch (n x n), the filter's scratch,
          the differentiators' scratch
 Models:  [O, J row-major, G](x, u_e)
 """
@@ -33,7 +33,7 @@ from .numerics import cond2, filter_output, filter_step, implicit_flow, solve
 (N, M, NUE, KNOWN, NDIM, NE, HASDU, KF,
  CX0, CPAR, CDY, CDU, CAF, CBF, CCF, CDF, CDC,
  SJ, SG, SO, SRAW, SETA, SXF, SACT, SET, SDY, SDU,
- WFC, FSLOTS, WREJ, WEV, WUE, WT, WFT, WR) = range(IC_HEADER, IC_HEADER + 35)
+ WFC, FSLOTS, WREJ, WEV, WUE, WT, WW, WFT, WR) = range(IC_HEADER, IC_HEADER + 36)
 MU, ALPHA, DELAY = 0, 1, 2
 _NON_FINITE_DIFF = CODE["non_finite_differentiator"]
 _UNDEFINED = CODE["model_undefined_at_estimate"]
@@ -62,6 +62,13 @@ def _ue(nx, c, ic, u, ue):
 
 
 @jit
+def _w(wk, ic):
+    """The n x n scratch of cond(J) and the solves."""
+    n = ic[N]
+    return wk[ic[WW]:ic[WW] + n * n].reshape(n, n)
+
+
+@jit
 def _commit(nx, c, ic, wk, ev, y):
     """J, G, O from the map's values; the residual |y - O_0| and cond(J)."""
     n = ic[N]
@@ -69,7 +76,7 @@ def _commit(nx, c, ic, wk, ev, y):
     nx[ic[SG]:ic[SG] + n] = ev[n + n * n:]
     nx[ic[SO]:ic[SO] + n] = ev[:n]
     nx[RESIDUAL] = abs(y[0] - ev[0])
-    nx[HEALTH] = cond2(nx[ic[SJ]:ic[SJ] + n * n].reshape(n, n))
+    nx[HEALTH] = cond2(nx[ic[SJ]:ic[SJ] + n * n].reshape(n, n), _w(wk, ic))
 
 
 @jit
@@ -148,10 +155,11 @@ def _advance(st, nx, c, ic, wk, s, h, y, u, models):
         Bf = c[ic[CBF]:ic[CBF] + k].reshape(k, 1)
         Cf = c[ic[CCF]:ic[CCF] + k].reshape(1, k)
         ft = ic[WFT]
+        P = wk[ft:ft + k * k].reshape(k, k)
+        T = wk[ft + k * k:ft + k * k + k * ne].reshape(k, ne)
         filter_step(Af, Bf, Cf, c[ic[CDF]], st[ic[SXF]:ic[SXF] + k * ne].reshape(k, ne),
                     st[ic[SRAW]:ic[SRAW] + ne], raw, h, wk, ic[WFC], ic[FSLOTS],
-                    nx[ic[SXF]:ic[SXF] + k * ne].reshape(k, ne), eta,
-                    wk[ft:ft + k * k].reshape(k, k), wk[ft + k * k:ft + k * k + k * ne].reshape(k, ne))
+                    nx[ic[SXF]:ic[SXF] + k * ne].reshape(k, ne), eta, P, T)
     else:
         eta[:] = raw
     x = st[HEADER:HEADER + n]
@@ -183,7 +191,7 @@ def _advance(st, nx, c, ic, wk, s, h, y, u, models):
                 ff[i] = eta[i] - eta0[i] - h * Gp[i]
             else:
                 ff[i] = 0.5 * h * (eta0[i + 1] + eta[i + 1]) - h * Gp[i]
-        if not solve(st[ic[SJ]:ic[SJ] + n * n], ff, n, dx):
+        if not solve(st[ic[SJ]:ic[SJ] + n * n], ff, n, dx, _w(wk, ic)):
             return _SINGULAR
         for i in range(n):
             xp[i] = x[i] + dx[i]
@@ -199,7 +207,7 @@ def _advance(st, nx, c, ic, wk, s, h, y, u, models):
             implicit_flow(ep, h * c[ic[CPAR] + MU], c[ic[CPAR] + ALPHA], en, a)
             for i in range(n):
                 ep[i] = ep[i] - en[i]
-        if not solve(ev[n:n + n * n], ep, n, dx):
+        if not solve(ev[n:n + n * n], ep, n, dx, _w(wk, ic)):
             return _SINGULAR
         for i in range(n):
             xn[i] = xp[i] + dx[i]

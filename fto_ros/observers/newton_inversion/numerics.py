@@ -76,17 +76,18 @@ def implicit_flow(e, c, alpha, out, a):
         out[i] = math.copysign(max(a[i] - tau, 0.0), e[i])
 
 
-def _cond_np(M):
+def _cond_np(M, W):
     return float(np.linalg.cond(M))
 
 
 @jit(pure=_cond_np)
-def cond2(M):
+def cond2(M, W):
     """The 2-norm condition number of the square M (numpy's np.linalg.cond without numba;
-    compiled: one-sided Jacobi on a copy, singular values to a few ulps of LAPACK's, so the
-    figure agrees to ~1e-15 relative); inf when M is singular, nan when not finite."""
+    compiled: one-sided Jacobi on W, a scratch copy, singular values to a few ulps of
+    LAPACK's, so the figure agrees to ~1e-15 relative); inf when M is singular, nan when
+    not finite."""
     n = M.shape[0]
-    W = M.copy()
+    W[:, :] = M
     for _ in range(60):
         rotated = False
         for p in range(n - 1):
@@ -126,10 +127,11 @@ def cond2(M):
 
 
 @jit
-def solve(J, b, n, out):
+def solve(J, b, n, out, W):
     """out = J^-1 b (J row-major n x n in a flat array); closed form for n <= 3, Gaussian
-    elimination otherwise (numpy's solve without numba); False where singular (|det| <=
-    1e-13 of its scale, or cond > 1e13 for n > 3)."""
+    elimination otherwise (numpy's solve without numba; it allocates: n > 3 only); False
+    where singular (|det| <= 1e-13 of its scale, or cond > 1e13 for n > 3).  W: n x n
+    scratch."""
     if n == 1:
         d = J[0]
         if d == 0.0:
@@ -161,7 +163,7 @@ def solve(J, b, n, out):
         out[2] = (C * y0 + (bb * g - a * hh) * y1 + (a * e - bb * d) * y2) / det
         return True
     M = J[:n * n].reshape(n, n)
-    if cond2(M) > 1e13:
+    if cond2(M, W) > 1e13:
         return False
     return gauss_solve(M, b, out)
 
