@@ -232,15 +232,6 @@ REACQUIRE = {"cubic_escape_global_norm": 0.2, "cubic_escape_high_gain": 1.3, "dc
              "dc_motor_acquire_track": 0.16}
 
 
-#: configs on which the burst measurably does no harm, so there is nothing to re-acquire
-#: (the test then only checks that nothing breaks): newton_inversion on these bags is still
-#: converging at the burst (errors of order 1: the DC motor's square-wave transients,
-#: example (22)'s slow local convergence), and fld_example1/2 carry an output disturbance
-#: the differentiator already rides
-NO_HARM = {"dc_motor_newton", "possieri_example_newton", "possieri_example_newton_ndim",
-           "possieri_example_newton_notch", "fld_example1_hosm", "fld_example2_hosm", "msd_newton"}
-
-
 def reacquisition_time(cfg, at: float, seconds: float) -> float | None:
     """Seconds after the end of a burst at ``at`` from which the error stays within twice the
     clean run's (+1e-6) to the end; None if it never does."""
@@ -265,7 +256,10 @@ def reacquisition_time(cfg, at: float, seconds: float) -> float | None:
     clean, junk = errs
     keys = sorted(k for k in junk if k in clean and k >= (at + BURST) * 1e6)
     harm = any(junk[k] > 2 * clean[k] + 1e-6 for k in keys[:5])
-    assert keys and harm == (cfg.name not in NO_HARM), f"harm done by the burst: {harm}"
+    # the burst does harm on every config (the check can fail; hosm and newton_inversion
+    # once looked unharmed: the fault suites' deep-copied runners had their differentiators'
+    # estimates frozen at the copy)
+    assert keys and harm, "the burst did no harm: nothing to re-acquire"
     for i, k in enumerate(keys):
         if all(junk[j] <= 2 * clean[j] + 1e-6 for j in keys[i:]):
             return k / 1e6 - (at + BURST)
