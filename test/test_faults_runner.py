@@ -213,8 +213,13 @@ def test_random_operation_sequences(cfg, seed):
 BURST_AT, BURST = 0.8, 0.1
 REACQUIRE = {"cubic_escape_global_norm": 0.2, "cubic_escape_high_gain": 1.3, "dc_motor_hosm": 0.4,
              "dc_motor_luenberger": 0.3, "dc_motor_luenberger_poles": 0.7, "dc_motor_newton": 1.0,
-             "fld_example1_hosm": 3.0, "fld_example2_hosm": 3.0, "possieri_example_newton": 1.0,
-             "possieri_example_newton_ndim": 1.0, "possieri_example_newton_notch": 1.0,
+             "fld_example2_hosm": 3.0, "possieri_example_newton": 1.0,
+             "possieri_example_newton_ndim": 1.0,
+             # first measured once the burst reached them (before, the suite's deep-copied
+             # runners froze the differentiators' estimates, so these looked unharmed): the
+             # unstable Example 1 back after 3.15-3.59 s (the window's length), the notch
+             # filter's 2.5/s poles after 1.93 s; 1.5x margin as the others
+             "fld_example1_hosm": 5.4, "possieri_example_newton_notch": 3.0,
              "van_der_pol_global_norm": 0.4, "van_der_pol_high_gain": 1.4,
              # the EKF baselines (no guarantee: an EKF re-acquires at its own pace)
              "cubic_escape_ekf": 2.1, "dc_motor_ekf": 0.3, "double_integrator_ekf": 2.2,
