@@ -7,6 +7,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +17,7 @@ import pytest
 
 from faultkit import committed_configs, runner_for, stream_for
 from fto_ros.bag import BagReader, BagWriter
+from fto_ros.core.errors import ConfigError
 from fto_ros.models import dc_motor
 from fto_ros.models.simulate import simulate, uniform_grid
 from fto_ros.replay import cli as replay_cli
@@ -289,3 +293,68 @@ def test_an_undecodable_message_is_one_line_naming_the_topic(motor, tmp_path, ca
     rc, err = _cli(capsys, path, *SD_ARGS, "--out", tmp_path / "o")
     assert rc == 1 and len(err) == 1, err
     assert "/dc_motor/measured_output" in err[0] and "decode" in err[0] and "unexpected" not in err[0]
+
+
+# -- parameters the design cannot use -------------------------------------------------------------
+@pytest.mark.parametrize("value", ["1.0e-300", "1.0e+300", "9223372036854775808", "1e6"])
+def test_a_design_that_fails_is_one_line_exit_2_without_warnings(motor, tmp_path, value):
+    """Was: scipy and numpy warnings on stderr, then 'unexpected LinAlgError', exit 1 (the
+    live node died of the same LinAlgError out of Runner.reconfigure).  A real process, so
+    that whatever Python would print reaches stderr."""
+    t, sim = motor
+    bag = tmp_path / "bag"
+    _write_motor_bag(bag, t[:300], sim)
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    res = subprocess.run([sys.executable, "-c", "import sys; from fto_ros.replay.cli import main; "
+                          "sys.exit(main())", str(bag), *SD_ARGS, "--set",
+                          f"single_delay.tau={value}", "--out", str(tmp_path / "o"), "--no-progress"],
+                         capture_output=True, text=True, env=env, timeout=120)
+    lines = res.stderr.strip().splitlines()
+    assert res.returncode == 2 and len(lines) == 1, res.stderr
+    assert lines[0].startswith("fto-replay: error: parameter 'single_delay."), lines[0]
+    assert "Warning" not in res.stderr and not res.stdout.strip()
+
+
+# -- sizes ----------------------------------------------------------------------------------------
+def _no_parsing(monkeypatch):
+    """Make any expression parse fail the test: a refusal must come before any work."""
+    def parse(*args, **kwargs):
+        raise AssertionError("an expression was parsed before the size check")
+    import fto_ros.core.named_model as named_model
+    import fto_ros.core.symbolic_model as symbolic_model
+    monkeypatch.setattr(named_model, "parse", parse)
+    monkeypatch.setattr(symbolic_model, "parse", parse)
+
+
+BIG = 100_000
+
+
+@pytest.mark.parametrize("what", ["constants", "states", "inputs", "outputs", "array",
+                                  "some_constants", "some_states"])
+def test_a_huge_plant_block_is_refused_before_any_work(monkeypatch, what):
+    """Was: a plant block with 100,000 constants was not refused within 40 s."""
+    flat = load_params_files(params_files(ROOT / "config" / "dc_motor_ekf.yaml"))
+    change, name = {
+        "constants": ({"plant.constants": [f"c{i}={i}" for i in range(BIG)]}, "plant.constants"),
+        "some_constants": ({"plant.constants": [f"c{i}={i}" for i in range(5000)]}, "plant.constants"),
+        "states": ({"plant.states": [f"x{i}" for i in range(BIG)], "plant.f": ["0"] * BIG},
+                   "plant.states"),
+        "some_states": ({"plant.states": [f"x{i}" for i in range(500)], "plant.f": ["0"] * 500},
+                        "plant.states"),
+        "inputs": ({"plant.inputs": [f"u{i}" for i in range(100)]}, "plant.inputs"),
+        "outputs": ({"plant.h": ["q"] * 100}, "plant.h"),
+        "array": ({"limits.measurement": [1.0] * 10 ** 6}, "limits.measurement"),
+    }[what]
+    _no_parsing(monkeypatch)
+    with pytest.raises(ConfigError) as err:
+        Runner({**flat, **change})
+    assert err.value.parameter == name and "at most" in str(err.value), err.value
+
+
+def test_a_huge_params_file_is_one_line_exit_2(tmp_path, capsys):
+    plant = tmp_path / "plant.yaml"
+    plant.write_text("/**:\n  ros__parameters:\n    plant:\n      constants: ["
+                     + ", ".join(f"'c{i}={i}'" for i in range(BIG)) + "]\n")
+    rc, err = _cli(capsys, ROOT / "bags" / "dc_motor_nominal", *SD_ARGS, "--params", plant,
+                   "--out", tmp_path / "o")
+    assert rc == 2 and len(err) == 1 and "plant.constants" in err[0] and "at most" in err[0], err

@@ -42,7 +42,15 @@ _NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 _RESERVED = set(FUNCTIONS) | {"pi", "E", "Integer", "Float", "Rational", "Symbol", "t"}
 
 
+#: most names in one list (states, inputs, unknown inputs) and most constants: the largest
+#: observer takes 64 states; checked before anything is parsed
+MAX_NAMES = 64
+MAX_CONSTANTS = 256
+
+
 def check_names(names: Sequence[str], parameter: str, taken: set[str]) -> None:
+    if len(names) > MAX_NAMES:
+        raise ConfigError(parameter, f"{len(names)} names: at most {MAX_NAMES}")
     for name in names:
         if not isinstance(name, str) or not _NAME.match(name) or keyword.iskeyword(name):
             raise ConfigError(parameter, f"{name!r} is not a valid name (letters, digits and _ "
@@ -58,6 +66,8 @@ def check_names(names: Sequence[str], parameter: str, taken: set[str]) -> None:
 
 def parse_constants(texts: Sequence[str], parameter: str, taken: set[str]) -> dict[str, float]:
     """``["a1=35", "b=2*a1"]`` -> {"a1": 35.0, "b": 70.0}; each may use the earlier ones."""
+    if len(texts) > MAX_CONSTANTS:
+        raise ConfigError(parameter, f"{len(texts)} constants: at most {MAX_CONSTANTS}")
     values: dict[str, float] = {}
     syms: dict[str, sympy.Symbol] = {}
     for i, text in enumerate(texts):
@@ -67,7 +77,7 @@ def parse_constants(texts: Sequence[str], parameter: str, taken: set[str]) -> di
         name, expr_text = (s.strip() for s in text.split("="))
         check_names([name], where, taken)
         expr = parse(expr_text, list(syms.values()), where)
-        val = expr.xreplace({syms[k]: sympy.Float(v) for k, v in values.items()})
+        val = expr.xreplace({s: sympy.Float(values[s.name]) for s in expr.free_symbols})
         try:
             num = float(val)
         except (TypeError, ValueError):

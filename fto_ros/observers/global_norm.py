@@ -46,6 +46,7 @@ from typing import Sequence
 import numpy as np
 import sympy
 
+from ..core.errors import ConfigNote
 from ..core.expressions import NamedFunction, compile_exprs, parse
 from .base import ConfigError, Observer, Param, SampleRejected
 
@@ -393,7 +394,7 @@ class GlobalNormObserver(Observer):
             msg = "; ".join(soft)
             if cfg["conditions"] == "refuse":
                 raise ConfigError(name, msg + f" (set {P}conditions: warn to run anyway)")
-            warnings.warn(f"{name}: {msg}", stacklevel=3)
+            warnings.warn(f"{name}: {msg}", ConfigNote, stacklevel=3)
             self.warnings = soft
 
     # -- protocol --------------------------------------------------------------------

@@ -81,9 +81,14 @@ class HosmObserver(Observer):
               "Hurwitz (empty: from 'poles')", read_only=False),
         Param("poles", "double_array", [], "n distinct negative real poles of A - L C (used when L is "
               "empty; needs (A, C) observable)", read_only=False),
-        Param("M", "double_array", None, "differentiator gain M per output (1 value: all outputs): a "
-              "bound on the highest differentiated derivative; the paper needs M > |d| zeta+ "
-              "(states) or M > |d| sup|zeta^(k+1)| (identification)", min=1e-12, read_only=False),
+        Param("M", "double_array", None, "per output (1 value: all outputs), a bound on the "
+              "N-th time derivative of the output error e_i = y_i - c_i z that differentiator i "
+              "differentiates, in y_i's units per s^N, N = r_i (states only) or r_i + k + 1 "
+              "(identification): for a joint angle (rad) driven by an unknown torque (r = 2), "
+              "rad/s^2 (the acceleration the unknown input causes) or, with k = 0, rad/s^3 (how "
+              "fast that acceleration changes). The paper needs M > |d| zeta+ or M > |d| "
+              "sup|zeta^(k+1)|; fto-design --suggest-from BAG measures it on a recording",
+              min=1e-12, read_only=False),
         Param("identify_unknown_input", "bool", True, "estimate zeta too (eq. 26-29, 39-40, 56): the "
               "differentiator order becomes r_i + k instead of r_i - 1", read_only=False),
         Param("smoothness_order", "int", 0, "k of Assumption 3.3: zeta^(k) is Lipschitz (its "
@@ -231,9 +236,12 @@ class HosmObserver(Observer):
         what = "sup|zeta^(k+1)|" if self.identify else "zeta+"
         for i in range(p):
             if not self.M[i] > need[i]:
+                N = self.bounded_orders[i]
                 raise ConfigError(P + "M", f"M[{i}] = {self.M[i]:g} is too small: the paper needs "
                                   f"M > sum_j |d_ij| {what}_j = {need[i]:.6g} for output {i} "
-                                  f"(d = c_i A^(r_i-1) D)")
+                                  f"(d = c_i A^(r_i-1) D); M[{i}] bounds d^{N}/dt^{N} of output "
+                                  f"{i}'s error y{i} - c{i} z, in y{i}'s units per s^{N} "
+                                  f"(rad/s^{N} for a joint angle)")
         self.M_check = "; ".join(f"M[{i}] = {self.M[i]:g} > {need[i]:.4g} = |d| {what}"
                                  for i in range(p))
 
@@ -382,6 +390,18 @@ class HosmObserver(Observer):
         return self._x_hat
 
     @property
+    def differentiated_signal(self) -> np.ndarray:
+        """e = y - C z at the last update: what differentiator i differentiates; its
+        ``bounded_orders[i]``-th time derivative is what M[i] bounds."""
+        return self._ytil.copy()
+
+    @property
+    def bounded_orders(self) -> list[int]:
+        """Per output, the order of the derivative of e_i that M[i] bounds: the
+        differentiator's order + 1 (r_i, or r_i + k + 1 when identifying)."""
+        return [o + 1 for o in self.orders]
+
+    @property
     def unknown_input(self):
         return self._zeta
 
@@ -408,6 +428,8 @@ class HosmObserver(Observer):
             "structure": kind,
             "observability index n_O": st.n_observable,
             "M": ", ".join(f"{v:g}" for v in self.M),
+            "M bounds": ", ".join(f"|d^{N}/dt^{N} (y{i} - c{i} z)| (units of y{i} per s^{N})"
+                                  for i, N in enumerate(self.bounded_orders)),
             "M check": self.M_check,
             "differentiator": f"{self.scheme}, order(s) {', '.join(str(o) for o in self.orders)}",
             "differentiator residual": f"{self.health:.3g}",

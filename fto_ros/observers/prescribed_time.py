@@ -70,6 +70,10 @@ from ..core.discretize import MAX_SUBSTEPS, STEP_QUANTUM, ExactStepper, StepCach
 from ..core.expressions import VectorFunction
 from .base import ConfigError, Observer, Param, SampleRejected, matrix
 
+#: the longest prescribed time (s) accepted: beyond ~1e10 s the window's model time no
+#: longer counts whole microseconds exactly in a double (2^53 us)
+MAX_T = 1e9
+
 P = "prescribed_time."
 
 #: largest plant order accepted (C's integer entries and the gain polynomials stay
@@ -270,6 +274,9 @@ class PrescribedTimeObserver(Observer):
         T = cfg["T"]
         if T is None or not T > 0:
             raise ConfigError(P + "T", f"must be > 0 (it is the convergence time), got {T}")
+        if not STEP_QUANTUM <= T <= MAX_T:
+            raise ConfigError(P + "T", f"must be between {STEP_QUANTUM:g} s (the runner's time "
+                              f"quantum) and {MAX_T:g} s, got {T:g}")
         m = cfg["m"]
         l = cfg["l"]
         if l is None or len(l) != n:

@@ -46,6 +46,7 @@ import numpy as np
 from scipy.linalg import expm
 
 from ..core.delay_buffer import DelayBuffer
+from ..core.errors import ConfigNote
 from ..core.discretize import MAX_SUBSTEPS, STEP_QUANTUM, ExactStepper, StepCache, quanta
 from ..core.expressions import VectorFunction
 from ..core.linear import observability_rank
@@ -55,6 +56,13 @@ P = "single_delay."
 #: a step longer than tau / FILL_POINTS fills the delay buffer with at most this many exact
 #: intermediate points over the last tau (bounded work per sample, whatever the gap)
 FILL_POINTS = 16
+#: the longest delay (s): the delay buffer holds tau seconds of samples
+MAX_TAU = 3600.0
+#: largest |eig(A1 + kI)| tau designed: beyond it e^{(A1 + kI) m} over [-tau, 0] has a
+#: boundary layer the quadrature cannot see (and overflows further out)
+MAX_RATE_TAU = 500.0
+#: largest relative change of S, N when the quadrature is refined (quadrature_error)
+MAX_QUADRATURE_ERROR = 1e-9
 
 
 # ---------------------------------------------------------------------------
@@ -73,24 +81,39 @@ def _exp(x: float) -> float:
     return math.exp(x) if x < 700 else math.inf
 
 
-def design(A1: np.ndarray, A2: np.ndarray, k: float, tau: float) -> dict:
-    """S, N, R, H, the decay matrices and the error-bound constants of the paper.
+def gramian(A1: np.ndarray, A2: np.ndarray, k: float, tau: float, panels: int = 16):
+    """(S, N, lambda at the nodes, nodes, weights): the integrals (5)-(6) over [-tau, 0] by
+    composite Gauss-Legendre quadrature, ``panels`` panels of 12 nodes.  The matrix
+    exponentials at all nodes are one batched ``expm`` call."""
+    I = np.eye(A1.shape[0])
+    Ak = A1 + k * I
+    G = A2 @ np.linalg.inv(Ak)
+    nodes, weights = _gauss_legendre(-tau, 0.0, panels)
+    # lambda(m) = G (I - e^{Ak m}) at every node
+    lam = G @ (I - expm(Ak * nodes[:, None, None]))                  # (nodes, q, n1)
+    S = np.einsum("k,kqi,kqj->ij", weights, lam, lam)
+    N = np.einsum("k,kqi->iq", weights, lam)
+    return S, N, lam, nodes, weights
 
-    Integrals over [-tau, 0] by composite Gauss-Legendre quadrature (the
-    integrands are sums of exponentials; 16 panels of 12 nodes give machine
-    precision for |A1 + kI| tau up to a few tens).  The matrix exponentials at
-    all nodes are one batched ``expm`` call.
-    """
+
+def quadrature_error(A1: np.ndarray, A2: np.ndarray, k: float, tau: float, S, N) -> float:
+    """Relative change of S and N when the quadrature is refined (twice the panels): the
+    a-posteriori error of the design's integrals.  The integrands are sums of exponentials
+    e^{eig(A1 + kI) m}; 16 panels resolve them to ~1e-15 while |eig| tau is below ~100."""
+    S2, N2, *_ = gramian(A1, A2, k, tau, panels=32)
+    return max(float(np.linalg.norm(S - S2) / np.linalg.norm(S2)),
+               float(np.linalg.norm(N - N2) / max(np.linalg.norm(N2), 1e-300)))
+
+
+def design(A1: np.ndarray, A2: np.ndarray, k: float, tau: float) -> dict:
+    """S, N, R, H, the decay matrices and the error-bound constants of the paper
+    (the integrals: :func:`gramian`)."""
     n1 = A1.shape[0]
     I = np.eye(n1)
     Ak = A1 + k * I
     Aki = np.linalg.inv(Ak)
     G = A2 @ Aki
-    nodes, weights = _gauss_legendre(-tau, 0.0)
-    # lambda(m) = G (I - e^{Ak m}) at every node
-    lam = G @ (I - expm(Ak * nodes[:, None, None]))                  # (nodes, q, n1)
-    S = np.einsum("k,kqi,kqj->ij", weights, lam, lam)
-    N = np.einsum("k,kqi->iq", weights, lam)
+    S, N, lam, nodes, weights = gramian(A1, A2, k, tau)
     Sinv = np.linalg.inv(S)
     R = Sinv @ N
     H = Aki.T @ A2.T
@@ -179,10 +202,20 @@ class SingleDelayObserver(Observer):
             raise ConfigError(P + "k", f"must be > 0, got {k}")
         if tau is None or tau <= 0:
             raise ConfigError(P + "tau", f"must be > 0 (it is the convergence time), got {tau}")
+        if not STEP_QUANTUM <= tau <= MAX_TAU:
+            raise ConfigError(P + "tau", f"must be between {STEP_QUANTUM:g} s (the runner's time "
+                              f"quantum) and {MAX_TAU:g} s (the delay buffer holds tau seconds of "
+                              f"samples), got {tau:g}")
         if observability_rank(A1, A2) < n1:
             raise ConfigError(P + "A2", "(A1, A2) is not observable: xi1 cannot be recovered from "
                               "the output (rank of the observability matrix < n1)")
-        sv = np.linalg.svd(A1 + k * np.eye(n1), compute_uv=False)
+        Ak = A1 + k * np.eye(n1)
+        rate = float(np.max(np.abs(np.linalg.eigvals(Ak)))) * tau if np.all(np.isfinite(Ak)) else math.inf
+        if not rate <= MAX_RATE_TAU:
+            raise ConfigError(f"{P}k, {P}tau", f"|eig(A1 + kI)| tau = {rate:.4g} is beyond {MAX_RATE_TAU:g}: "
+                              f"the design's integrals over [-tau, 0] (eq. 5) cannot be resolved in "
+                              f"double precision (k = {k:g}, tau = {tau:g}); use a smaller tau or k")
+        sv = np.linalg.svd(Ak, compute_uv=False)
         if sv[-1] <= 1e-9 * max(sv[0], 1.0):
             eig = np.linalg.eigvals(A1)
             raise ConfigError(P + "k", f"A1 + k I is singular: k = {k} equals -eigenvalue of A1 "
@@ -209,11 +242,20 @@ class SingleDelayObserver(Observer):
                              f"counts it twice)" for i, e in enumerate(checked["F2"].exprs)
                              if e.coeff(ys[i]).is_number and float(e.coeff(ys[i])) == k), None)
         if self.F2_note:
-            warnings.warn(self.F2_note, stacklevel=3)
-        d = design(A1, A2, k, tau)
+            warnings.warn(self.F2_note, ConfigNote, stacklevel=3)
+        try:
+            d = design(A1, A2, k, tau)
+        except np.linalg.LinAlgError:
+            d = {"cond_S": math.inf}
         if not np.isfinite(d["cond_S"]) or d["cond_S"] > 1e13:
             raise ConfigError(P + "tau", f"the Gramian S is numerically singular (cond(S) = "
                               f"{d['cond_S']:.3g}); change tau or k (cond(S) grows with (|A1| + k) tau)")
+        err = quadrature_error(A1, A2, k, tau, d["S"], d["N"])
+        if not err <= MAX_QUADRATURE_ERROR:
+            raise ConfigError(f"{P}k, {P}tau", f"the design's integrals over [-tau, 0] are not resolved: "
+                              f"refining the quadrature changes S or N by {err:.2g} (relative; at "
+                              f"most {MAX_QUADRATURE_ERROR:g}); use a smaller tau or k (|eig(A1 + kI)| "
+                              f"tau = {rate:.3g})")
         self.design = d
         self.A1, self.A2, self.k, self.tau = A1, A2, k, tau
         # Lipschitz constants of the paper's F1 and F2 = G + k y (eq. 3)

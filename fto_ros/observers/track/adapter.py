@@ -84,6 +84,10 @@ class TrackKernelObserver(TrackObserver, KernelObserver):
             for key, (o, size) in place.items():
                 setattr(kid, "_" + key, arrays[key][o:o + size])
 
+    def adopt(self, st, nx, c, ic, wk, clk) -> None:
+        super().adopt(st, nx, c, ic, wk, clk)
+        self._bind_children()
+
     def __deepcopy__(self, memo):
         new = KernelObserver.__deepcopy__(self, memo)
         # a model list of its own: _run moves the running child's terms into its slots
