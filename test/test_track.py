@@ -1,4 +1,4 @@
-"""observer.type: track (observers/track.py): a guaranteed-time acquirer hands over to a
+"""observer.type: track (observers/track/): a guaranteed-time acquirer hands over to a
 Kalman tracker, with innovation-gated re-acquisition.
 
 What is checked:
@@ -13,7 +13,10 @@ What is checked:
   on ``convergence`` and in /diagnostics; the replay metrics;
 - the window test: one spike does not re-acquire, min_inconsistent samples do;
 - refusals naming the parameter (a tracker with no noise model, an unknown acquirer,
-  a missing tracker); the live node runs the composition with both sections declared.
+  a missing tracker); the live node runs the composition with both sections declared;
+- the compiled composition (with a test-only compiled acquirer until the acquirer families
+  are compiled): the Python composition's decisions bit for bit, the runner's block loop,
+  copies; which of the two runs the committed configs; the window's exact sum.
 """
 from __future__ import annotations
 
@@ -240,6 +243,18 @@ def _outputs(obs):
             obs.guaranteed_time, obs.convergence_extra())
 
 
+def _stand_in_flat(monkeypatch) -> dict:
+    """The DC motor's track with the test-only acquirer registered as single_delay (its
+    luenberger section as the plant block derives it) and the ekf as tracker."""
+    from fto_ros.observers import REGISTRY
+    monkeypatch.setitem(REGISTRY, "single_delay", _GuaranteedLuenberger)
+    flat = load_params_files([str(PLANT), str(CONFIG / "dc_motor_ekf.yaml")])
+    flat.update({"luenberger." + k: v for k, v in _section("dc_motor_luenberger_poles.yaml")[1].items()})
+    flat.update({"observer.type": "track", "track.acquirer": "single_delay",
+                 "track.tracker": "ekf"})
+    return flat
+
+
 @pytest.mark.parametrize("guaranteed, tracker", [(True, "ekf"), (False, "ekf"),
                                                  (True, "luenberger")])
 def test_the_compiled_composition_decides_as_the_python_one(guaranteed, tracker):
@@ -280,14 +295,8 @@ def test_the_compiled_composition_runs_in_the_runner(monkeypatch):
     compiled acquirer: the outputs of the observer driven sample by sample; a copy of the
     runner goes on as the original."""
     import copy
-    from fto_ros.observers import REGISTRY
     from fto_ros.runner import loop as L
-    monkeypatch.setitem(REGISTRY, "single_delay", _GuaranteedLuenberger)
-    flat = load_params_files([str(PLANT), str(CONFIG / "dc_motor_ekf.yaml")])
-    # the acquirer's section as the plant block derives it for luenberger
-    flat.update({"luenberger." + k: v for k, v in _section("dc_motor_luenberger_poles.yaml")[1].items()})
-    flat.update({"observer.type": "track", "track.acquirer": "single_delay",
-                 "track.tracker": "ekf"})
+    flat = _stand_in_flat(monkeypatch)
     runner, block_runner = Runner(flat), Runner(flat)
     assert type(runner) is Runner and type(runner.observer) is TrackKernelObserver
     direct = TrackObserver(runner.observer_config)
@@ -321,6 +330,28 @@ def test_the_compiled_composition_runs_in_the_runner(monkeypatch):
     assert gated and runner.observer.diagnostics()["mode"] in ("tracking", "re-acquiring")
     np.testing.assert_array_equal(twin.observer.estimate, runner.observer.estimate)
     assert max(blk.convergence[:, 0, 6]) >= 1                      # hand-overs
+
+
+def test_the_compiled_composition_runs_per_joint(monkeypatch):
+    """Three joints' compositions in one runner (the joints axis: the runner's rows of
+    every array, each joint's model list its own): each joint's outputs are those of a
+    runner of that joint alone, bit for bit, through its hand-over."""
+    flat = _stand_in_flat(monkeypatch)
+    multi = Runner(dict(flat, joints=["j1", "j2", "j3"], source="joint_states"))
+    alone = [Runner(flat) for _ in range(3)]
+    assert multi.n_joints == 3 and type(multi.observer) is TrackKernelObserver
+    t, y, u = _stream(seed=5, n=1500)
+    ys = y + np.array([0.0, 0.01, -0.02])            # three joints, three measurements
+    for k in range(len(t)):
+        outs = multi.process_joints(t[k], ys[k][:, None], np.repeat(u[k][None, :], 3, axis=0))
+        for j, r in enumerate(alone):
+            r.set_input(t[k], u[k])
+            ref = r.process(t[k], ys[k, j:j + 1])
+            assert isinstance(outs[j], Output) and isinstance(ref, Output), (k, j)
+            np.testing.assert_array_equal(outs[j].estimate, ref.estimate)
+            np.testing.assert_array_equal(outs[j].convergence, ref.convergence)
+    assert all(o.observer.diagnostics()["mode"] == "tracking" for o in alone)
+    assert [o.diagnostics()["mode"] for o in multi.observers] == ["tracking"] * 3
 
 
 def test_the_composition_is_compiled_when_its_acquirer_is():

@@ -116,18 +116,20 @@ class ExtendedKalmanFilter(KernelObserver):
         return self._st[o:o + size]
 
     # -- outputs --------------------------------------------------------------------
+    def _p0(self) -> np.ndarray:
+        """The (re)start covariance in the constants (kernel.py's layout)."""
+        n = self.n_states
+        o = SUB_STEP + 1 + n * n + self.n_outputs ** 2
+        return self._c[o:o + n * n].reshape(n, n)
+
     @property
     def P0(self) -> np.ndarray:
         """The covariance every (re)start begins with (a copy; assign to change it)."""
-        n = self.n_states
-        o = SUB_STEP + 1 + n * n + self.n_outputs ** 2
-        return self._c[o:o + n * n].reshape(n, n).copy()
+        return self._p0().copy()
 
     @P0.setter
     def P0(self, value) -> None:
-        n = self.n_states
-        o = SUB_STEP + 1 + n * n + self.n_outputs ** 2
-        self._c[o:o + n * n] = np.asarray(value, dtype=float).reshape(n * n)
+        self._p0()[:] = np.asarray(value, dtype=float).reshape(self.n_states, self.n_states)
 
     @property
     def covariance(self) -> np.ndarray:

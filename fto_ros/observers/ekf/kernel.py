@@ -14,7 +14,7 @@ State:   header | x (n) | P (n x n) | u of the last sample (m) | innovation nu (
 Consts:  header | sub_step | Qc (n x n) | R (p x p) | P0 (n x n)
 Ints:    header | n, p, m, foh, then the state offsets of P, u, nu, S, the NIS sum, the
          update count
-Work:    none (the temporaries are numpy's)
+Work:    none (the temporaries are new arrays, as in the exponential)
 Models:  [f(x, u) (n) then df/dx (n x n, row-major), h(x, u) (p) then dh/dx (p x n)]
 """
 from __future__ import annotations
@@ -76,8 +76,8 @@ def _restart(st, c, ic, x0, has_x0):
 
 @jit
 def _predict(x, Pm, u, dt, Qc, models, vals):
-    """(x, P) after one linearised exact sub-step of length dt from (x, P), or None when
-    the model is not finite there."""
+    """(True, x, P) after one linearised exact sub-step of length dt from (x, P); (False,
+    ...) when the model is not finite there.  (The models take no y: u stands in.)"""
     n = x.shape[0]
     models[0](x, u, u, vals)
     A = vals[n:].reshape(n, n)

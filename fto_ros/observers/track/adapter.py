@@ -18,6 +18,7 @@ from ..base import KernelObserver
 from . import kernel
 from .design import TrackObserver
 
+
 class TrackKernelObserver(TrackObserver, KernelObserver):
     """``track`` with a compiled acquirer and tracker, run by the composition's kernel."""
 
@@ -31,12 +32,12 @@ class TrackKernelObserver(TrackObserver, KernelObserver):
         self.reset()
 
     def _compose(self) -> None:
+        """The composition's arrays (kernel.py has the layout), the children's copied in."""
         n, w = self.n_states, self.window
         kids = (self.acquirer, self.tracker)
-        sc = K.HEADER + n
+        sc = K.HEADER + n                                  # the composition's scalars
         st_size = sc + kernel.SCALARS
-        rq_size = K.RQ_X0 + n
-        ring = rq_size
+        request, ring = 0, K.RQ_X0 + n
         partials = ring + w + 1
         wk_size = partials + kernel.PARTIALS
         c = [min(k.max_step for k in kids), self.threshold, self.clip,
@@ -49,12 +50,12 @@ class TrackKernelObserver(TrackObserver, KernelObserver):
         for i, kid in enumerate(kids, start=1):
             size = kid._st.size
             place = dict(st=(st_size, size), clk=(st_size + size, K.CLOCK_SIZE),
-                         nx=(wk_size, size), wk=(wk_size + size, kid._wk.size),
-                         c=(len(c), kid._c.size), ic=(ic_size, kid._ic.size))
+                         nx=(wk_size, size), c=(len(c), kid._c.size),
+                         ic=(ic_size, kid._ic.size), wk=(wk_size + size, kid._wk.size))
             self._places.append(place)
-            rows.append([i, st_size, size, st_size + size, wk_size, len(c), kid._c.size, ic_size,
-                         kid._ic.size, wk_size + size, kid._wk.size, i * J.MODEL_SLOTS,
-                         len(kid.models)])
+            # the child's row, in the order of the CH_* fields
+            rows += [i, *place["st"], place["clk"][0], place["nx"][0], *place["c"], *place["ic"],
+                     *place["wk"], i * J.MODEL_SLOTS, len(kid.models)]
             st_size += size + K.CLOCK_SIZE
             wk_size += size + kid._wk.size
             ic_size += kid._ic.size
@@ -63,9 +64,8 @@ class TrackKernelObserver(TrackObserver, KernelObserver):
                 [none_kernel()] * (J.MODEL_SLOTS - len(kid.models))
         ic = K.layout_ic(n, K.HEADER, n_extra=3, extra=sc + kernel.MODE, extra_ints=own_ints)
         ic[K.COMPOSED] = tab
-        ic = np.concatenate([ic, [len(kids), 0]] + [np.array(r) for r in rows] +
-                            [kid._ic for kid in kids]).astype(np.int64)
-        self._build_kernel(np.array(c), ic, np.zeros(wk_size), st_size)
+        ic = np.concatenate([ic, [len(kids), request], rows] + [kid._ic for kid in kids])
+        self._build_kernel(np.array(c), ic.astype(np.int64), np.zeros(wk_size), st_size)
         for kid, place in zip(kids, self._places):
             for key, target in (("st", self._st), ("clk", self._st), ("wk", self._wk)):
                 o, size = place[key]

@@ -25,7 +25,7 @@ import math
 from ...core import jit as J
 from ...core.jit import jit
 from .. import kernel as K
-from ..kernel import (C_HEADER, CALL, CALL_RESTART, CALL_UPDATE, CLK_K, CLOCK_SIZE, CONVERGED,
+from ..kernel import (C_HEADER, CALL, CALL_RESTART, CALL_UPDATE, CLK_K, CONVERGED,
                       GUARANTEED, HEADER, HEALTH, IC_HEADER, RESIDUAL, RQ_CHILD, RQ_HAS_X0,
                       RQ_OP, RQ_PC, RQ_RESULT, RQ_X0, STEP_QUANTUM)
 from .design import ACQUIRING, REACQUIRING, TRACKING
