@@ -379,3 +379,29 @@ def test_the_window_sum_is_math_fsum():
         for q in range(count):
             wk[(head - count + q) % cap] = terms[q]
         assert TK.exact_sum(wk, 0, cap, head, count, cap) == math.fsum(terms), trial
+
+
+def _asks_forever(op, st, nx, c, ic, wk, a, b, y, u, models):
+    """A broken composition kernel: it asks for its acquirer's sample again and again."""
+    rq = ic[ic[K.COMPOSED] + K.TAB_REQUEST]
+    wk[rq + K.RQ_CHILD] = 1.0
+    wk[rq + K.RQ_OP] = K.CALL_UPDATE
+    return K.CALL
+
+
+def test_a_composition_that_never_decides_is_stopped():
+    """More than MAX_CALLS calls in one sample: the sample is rejected (observer_error) with
+    the state as it was, instead of a loop without end."""
+    from fto_ros.core import jit as J
+    obs = TrackObserver(_composition_cfg(True, "ekf"))
+    t, y, u = _stream(n=20)
+    for k in range(10):
+        obs.update_checked(t[k], y[k], u[k])
+    before = obs._st.copy()
+    kids = [J.kernel(_asks_forever, J.KERNEL)] + \
+        [J.kernel(kid.KERNEL.kernel, J.KERNEL) for kid in (obs.acquirer, obs.tracker)]
+    obs._kernels = J.function_list(kids, J.KERNELS)
+    with pytest.raises(SampleRejected) as err:
+        obs.update_checked(t[10], y[10], u[10])
+    assert err.value.reason == "observer_error"
+    np.testing.assert_array_equal(obs._st, before)

@@ -112,7 +112,8 @@ RQ_PC, RQ_CHILD, RQ_OP, RQ_HAS_X0, RQ_RESULT, RQ_X0 = range(6)
 CALL_RESTART, CALL_UPDATE = 0, 1
 #: calls one composition's kernel may ask for per sample (a bound on the work, and a guard)
 MAX_CALLS = 16
-#: a composition that asked for more calls than MAX_CALLS (a bug), or resumed at no phase
+#: a composition that asked for more calls than MAX_CALLS or for a child it has not, or
+#: was resumed at no phase of its own (a bug)
 BROKEN = CODE["observer_error"]
 
 
@@ -195,9 +196,10 @@ def _run(kernels, models, op, st, nx, c, ic, wk, a, b, y, u, t):
     calls = 0
     while code == CALL:
         calls += 1
-        if calls > MAX_CALLS:
+        child = int(wk[rq + RQ_CHILD])
+        if calls > MAX_CALLS or not 1 <= child <= ic[tab + TAB_CHILDREN]:
             return BROKEN
-        e = tab + TAB_HEADER + (int(wk[rq + RQ_CHILD]) - 1) * CHILD_WIDTH
+        e = tab + TAB_HEADER + (child - 1) * CHILD_WIDTH
         wk[rq + RQ_RESULT] = _child(kernels, models, home, c, ic, wk, e, rq, t, y, u)
         code = kernels[0](RESUME, st, nx, c, ic, wk, a, b, y, u, models)
     return code
