@@ -191,3 +191,115 @@ def test_innovation_and_its_covariance_are_exposed():
     assert f.nis == pytest.approx(float(nu @ np.linalg.solve(S, nu)))
     assert f.health == f.nis and f.output_residual == pytest.approx(abs(nu[0]))
     assert "NIS mean since reset" in f.diagnostics()
+
+
+# -- the compiled kernel against the numpy path and scipy ------------------------------------
+from fto_ros.core import jit as J  # noqa: E402
+
+COMPILED = pytest.mark.skipif(not J.ENABLED, reason="compares the compiled kernels with the "
+                              "numpy path, and numba is off (FTO_ROS_NUMBA=0)")
+
+
+def _family_pairs():
+    """Every committed config of the ekf (and of track, whose tracker is one) with the first
+    bag the reference runs it on."""
+    import reference_runs as RR
+    pairs, seen = [], set()
+    for p in RR.load_reference()[1]["pairs"]:
+        name = p["params"][-1]
+        if name.endswith("_ekf.yaml") or name.endswith("acquire_track.yaml"):
+            if name not in seen:
+                seen.add(name)
+                pairs.append([p["bag"], p["params"]])
+    return pairs
+
+
+@COMPILED
+@pytest.mark.slow
+def test_compiled_and_numpy_paths_agree_on_the_committed_configs(tmp_path):
+    """The first 3000 messages of each pair, compiled here and on the numpy path in a
+    subprocess: the same statuses; estimates within 1e-12 of each state's scale; the output
+    residual y - h(x) within 1e-12 of the measurement's scale (it is a difference of numbers
+    of that size); the NIS nu' S^-1 nu within 1e-12 relative, widened by the residual's
+    conditioning (NIS ~ nu^2: a relative error of 2 * 1e-12 max|y| / |nu| where nu is near
+    the rounding of y).  Measured: estimates <= 1.1e-13, residuals <= 1.0e-13 of scale, NIS
+    <= 1.4e-12 relative (possieri_example, fld_example2); the compiled expm, core.linalg's
+    products and solve order the sums differently from scipy's and BLAS."""
+    import path_runs as PR
+    pairs = _family_pairs()
+    assert len(pairs) >= 11
+    compiled = PR.run_pairs(pairs, 3000)
+    numpy_path = PR.numpy_path(pairs, 3000, tmp_path)
+    for i, (bag, params) in enumerate(pairs):
+        what = f"{params[-1]} on {bag}"
+        status = compiled[f"{i}_status"]
+        np.testing.assert_array_equal(status, numpy_path[f"{i}_status"], err_msg=what)
+        out = status == 0
+        assert out.sum() > 500, what
+        est, ref = compiled[f"{i}_est"][out], numpy_path[f"{i}_est"][out]
+        scale = np.maximum(1.0, np.abs(ref).max(axis=0))
+        assert np.max(np.abs(est - ref) / scale) <= 1e-12, what
+        conv, cref = compiled[f"{i}_conv"][out], numpy_path[f"{i}_conv"][out]
+        res, nis = 1, 4                             # runner.CONVERGENCE_FIELDS
+        np.testing.assert_array_equal(np.delete(conv, [res, nis], axis=1),
+                                      np.delete(cref, [res, nis], axis=1), err_msg=what)
+        ymax = max(1.0, _measurement_scale(bag, params))
+        assert np.max(np.abs(conv[:, res] - cref[:, res])) <= 1e-12 * ymax, what
+        widen = 1.0 + 2.0 * ymax / np.maximum(np.abs(cref[:, res]), 1e-300)
+        tol = 1e-12 * np.maximum(1.0, np.abs(cref[:, nis])) * widen
+        assert np.all(np.abs(conv[:, nis] - cref[:, nis]) <= tol), what
+
+
+def _measurement_scale(bag, params) -> float:
+    import path_runs as PR
+    from fto_ros.runner import Runner, loop as L
+    from fto_ros.runner.params_file import load_params_files
+    r = Runner(load_params_files([str(PR.ROOT / p) for p in params]))
+    kind, _, values = PR._events(PR.ROOT / "bags" / bag, r, 3000)
+    return float(np.abs(values[kind == L.MEASUREMENT]).max())
+
+
+def _van_loan(rng, n, scale, dt):
+    A = rng.normal(size=(n, n)) * scale
+    M = np.zeros((2 * n + 1, 2 * n + 1))
+    M[0, n + 1:] = rng.normal(size=n)
+    M[1:n + 1, 1:n + 1] = -A
+    M[1:n + 1, n + 1:] = np.diag(rng.uniform(0.0, 1.0, n))
+    M[n + 1:, n + 1:] = A.T
+    return M * dt
+
+
+@COMPILED
+@pytest.mark.parametrize("kind", ["van_loan", "general", "large_norm", "upper", "lower",
+                                  "diagonal", "blas_sized"])
+def test_compiled_expm_is_accurate(kind):
+    """core.linalg.expm (compiled, scipy's algorithm) against e^M to 50 digits (mpmath): the
+    EKF's Van Loan matrices, general ones, norms that need scaling and squaring (Pade 13),
+    the triangular cases (exact diagonal and superdiagonal), a diagonal one and one large
+    enough for BLAS.  Measured: <= 5.2e-14 of the largest entry (large norms; scipy's own
+    expm: 9.7e-12 there, 2.7e-13 on the triangular ones), 2.1e-16 on the Van Loan ones."""
+    import mpmath
+    from fto_ros.core.linalg import expm as compiled_expm
+    rng = np.random.default_rng(7)
+    bar = {"van_loan": 1e-15, "general": 1e-14}.get(kind, 1e-13)
+    for _ in range(12):
+        n = int(rng.integers(2, 8))
+        if kind == "van_loan":
+            M = _van_loan(rng, n, 100.0, 1e-3)
+        elif kind == "general":
+            M = rng.normal(size=(n, n))
+        elif kind == "large_norm":
+            M = rng.normal(size=(n, n)) * 30.0
+        elif kind == "upper":
+            M = np.triu(rng.normal(size=(n, n)) * 8.0)
+        elif kind == "lower":
+            M = np.tril(rng.normal(size=(n, n)) * 8.0)
+        elif kind == "diagonal":
+            M = np.diag(rng.normal(size=n))
+        else:
+            M = rng.normal(size=(20, 20)) * 0.5
+        with mpmath.workdps(50):
+            exact = np.array(mpmath.expm(mpmath.matrix(M.tolist())).tolist(), dtype=float)
+        err = np.max(np.abs(compiled_expm(M) - exact)) / np.max(np.abs(exact))
+        assert err <= bar, (kind, n, err)
+    assert np.all(np.isnan(compiled_expm(np.array([[np.inf, 0.0], [0.0, 1.0]]))))

@@ -171,6 +171,17 @@ def _kernels_list(k0):
     return out
 
 
+def _models_extend(out, m0, m1, m2, m3):
+    out.append(m0)
+    out.append(m1)
+    out.append(m2)
+    out.append(m3)
+
+
+def _kernels_extend(out, k0):
+    out.append(k0)
+
+
 _makers = {}
 
 
@@ -197,23 +208,31 @@ def _append_models(out, m):
 
 def function_list(fns, kind):
     """The functions ``fns`` as what compiled code takes: a typed list of function pointers
-    (``kind``: MODELS, exactly MODEL_SLOTS of them, or KERNELS, one), passed from Python at the
-    cost of one object (a function object per argument costs tens of microseconds per
-    call).  The list is built by a compiled, cached function: a typed list built from Python
-    compiles its methods afresh in every process.  A plain list without numba."""
+    (``kind``: MODELS, MODEL_SLOTS of them or a multiple (a composition's), KERNELS, one or
+    more, or MODELS_BY_JOINT, model lists), passed from Python at the cost of one object (a function object per argument
+    costs tens of microseconds per call).  The list is built by compiled, cached functions:
+    a typed list built from Python compiles its methods afresh in every process.  A plain
+    list without numba."""
     if not ENABLED:
         return list(fns)
-    maker = _makers.get(id(kind))
-    if maker is None:
+    if kind is MODELS_BY_JOINT:
+        return _by_joint(fns)
+    makers = _makers.get(id(kind))
+    if makers is None:
         item = kind.item_type
         if kind is MODELS:
-            maker = _njit(_models_list, kind(item, item, item, item))
-        elif kind is MODELS_BY_JOINT:
-            return _by_joint(fns)
+            makers = (_njit(_models_list, kind(item, item, item, item)),
+                      _njit(_models_extend, numba.types.void(kind, item, item, item, item)))
         else:
-            maker = _njit(_kernels_list, kind(item))
-        _makers[id(kind)] = maker
-    return maker(*fns)
+            makers = (_njit(_kernels_list, kind(item)),
+                      _njit(_kernels_extend, numba.types.void(kind, item)))
+        _makers[id(kind)] = makers
+    fns = list(fns)
+    width = MODEL_SLOTS if kind is MODELS else 1
+    out = makers[0](*fns[:width])
+    for i in range(width, len(fns), width):
+        makers[1](out, *fns[i:i + width])
+    return out
 
 
 class _Compiled:

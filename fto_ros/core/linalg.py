@@ -50,6 +50,123 @@ def finite(v):
     return acc == 0.0
 
 
+#: up to this many rows a matrix product or solve is straight loops (a BLAS or LAPACK call
+#: costs more than the flops: a 7x7 product 0.57 us through BLAS, a 7x7 solve 4.8 us through
+#: numba's LAPACK wrapper, measured), beyond it the library
+SMALL = 16
+
+
+def _mul_np(A, B):
+    return A @ B
+
+
+@jit(pure=_mul_np)
+def mul(A, B):
+    """A @ B for 2-D A, B (a new array): loops for small matrices, in the order of the sums
+    of a plain product (no fused multiply-add), BLAS for large ones; numpy's @ on the numpy
+    path."""
+    n, k = A.shape
+    m = B.shape[1]
+    if n > SMALL or k > SMALL or m > SMALL:
+        return np.ascontiguousarray(A) @ np.ascontiguousarray(B)
+    out = np.zeros((n, m))
+    for i in range(n):
+        for l in range(k):
+            a = A[i, l]
+            for j in range(m):
+                out[i, j] += a * B[l, j]
+    return out
+
+
+def _mulv_np(A, x):
+    return A @ x
+
+
+@jit(pure=_mulv_np)
+def mulv(A, x):
+    """A @ x for 2-D A, 1-D x (a new array), as ``mul``."""
+    n, k = A.shape
+    if n > SMALL or k > SMALL:
+        return np.ascontiguousarray(A) @ np.ascontiguousarray(x)
+    out = np.zeros(n)
+    for i in range(n):
+        acc = 0.0
+        for j in range(k):
+            acc += A[i, j] * x[j]
+        out[i] = acc
+    return out
+
+
+def _vmul_np(x, A):
+    return x @ A
+
+
+@jit(pure=_vmul_np)
+def vmul(x, A):
+    """x @ A for 1-D x, 2-D A (a new array), as ``mul``."""
+    k, m = A.shape
+    if k > SMALL or m > SMALL:
+        return np.ascontiguousarray(x) @ np.ascontiguousarray(A)
+    out = np.zeros(m)
+    for i in range(k):
+        xi = x[i]
+        for j in range(m):
+            out[j] += xi * A[i, j]
+    return out
+
+
+def _dot_np(x, y):
+    return x @ y
+
+
+@jit(pure=_dot_np)
+def dot(x, y):
+    """x @ y for 1-D x, y: a loop (numpy's @ on the numpy path)."""
+    acc = 0.0
+    for i in range(x.shape[0]):
+        acc += x[i] * y[i]
+    return acc
+
+
+@jit
+def _solve_many(A, B):
+    """A^-1 B (a new array) by LU with partial pivoting (loops for small A, else LAPACK);
+    a singular A gives non-finite values, as LAPACK's does not raise inside expm's use."""
+    n = A.shape[0]
+    if n > SMALL:
+        return np.linalg.solve(A, B)
+    M = A.copy()
+    X = B.copy()
+    m = X.shape[1]
+    for c in range(n):
+        p = c
+        big = abs(M[c, c])
+        for r in range(c + 1, n):
+            if abs(M[r, c]) > big:
+                big = abs(M[r, c])
+                p = r
+        if p != c:
+            for j in range(n):
+                M[c, j], M[p, j] = M[p, j], M[c, j]
+            for j in range(m):
+                X[c, j], X[p, j] = X[p, j], X[c, j]
+        piv = M[c, c]
+        for r in range(c + 1, n):
+            f = M[r, c] / piv
+            if f != 0.0:
+                for j in range(c + 1, n):
+                    M[r, j] -= f * M[c, j]
+                for j in range(m):
+                    X[r, j] -= f * X[c, j]
+    for c in range(n - 1, -1, -1):
+        for j in range(m):
+            acc = X[c, j]
+            for q in range(c + 1, n):
+                acc -= M[c, q] * X[q, j]
+            X[c, j] = acc / M[c, c]
+    return X
+
+
 # -- the matrix exponential --------------------------------------------------------------
 # Scaling and squaring with Pade approximants of degree 3, 5, 7, 9 or 13, the degree and
 # the scaling chosen as Al-Mohy & Higham 2009 ("A new scaling and squaring algorithm for the
@@ -91,8 +208,16 @@ def _norm1(A):
 @jit
 def _spin(v, absA, times):
     """v <- v |A|^times (row vector: 1-norm powers of |A|)."""
+    n = v.shape[0]
+    v = v.copy()
+    w = np.empty(n)
     for _ in range(times):
-        v = v @ absA
+        w[:] = 0.0
+        for i in range(n):
+            vi = v[i]
+            for j in range(n):
+                w[j] += vi * absA[i, j]
+        v, w = w, v
     return v
 
 
@@ -109,7 +234,7 @@ def _pick(A, A2, A4, A6):
     """(m, s): the Pade degree and the scaling 2^-s."""
     n = A.shape[0]
     absA = np.abs(A)
-    v = np.ones(n) @ absA
+    v = _spin(np.ones(n), absA, 1)
     normA = v.max()
     d4 = _norm1(A4) ** 0.25
     d6 = _norm1(A6) ** (1.0 / 6.0)
@@ -120,7 +245,7 @@ def _pick(A, A2, A4, A6):
     v = _spin(v, absA, 4)
     if eta < _THETA[1] and _lm(v, normA, _COEFF[1], 10) == 0:
         return 5, 0
-    A8 = A4 @ A4
+    A8 = mul(A4, A4)
     d8 = _norm1(A8) ** 0.125
     eta2 = max(d6, d8)
     v = _spin(v, absA, 4)
@@ -129,7 +254,7 @@ def _pick(A, A2, A4, A6):
     v = _spin(v, absA, 4)
     if eta2 < _THETA[3] and _lm(v, normA, _COEFF[3], 18) == 0:
         return 9, 0
-    d10 = _norm1(A6 @ A4) ** 0.1
+    d10 = _norm1(mul(A6, A4)) ** 0.1
     eta4 = min(eta2, max(d8, d10))
     s = max(int(math.ceil(math.log2(eta4 / _THETA[4]))), 0) if eta4 > 0.0 else 0
     if s != 0:
@@ -150,13 +275,13 @@ def _add_diag(M, c):
 def _pade(A, A2, A4, A6, m):
     """r_m(A) = I + 2 (V - U)^-1 U."""
     if m == 3:
-        U = A @ A2 + _B3[1] * A
+        U = mul(A, A2) + _B3[1] * A
         V = _B3[2] * A2
         _add_diag(V, _B3[0])
     elif m == 5:
         W = _B5[3] * A2 + A4
         _add_diag(W, _B5[1])
-        U = A @ W
+        U = mul(A, W)
         V = _B5[2] * A2 + _B5[4] * A4
         _add_diag(V, _B5[0])
     elif m == 7:
@@ -164,14 +289,14 @@ def _pade(A, A2, A4, A6, m):
         _add_diag(W, _B7[1])
         V = _B7[2] * A2 + _B7[4] * A4 + _B7[6] * A6
         _add_diag(V, _B7[0])
-        U = A @ W
+        U = mul(A, W)
     elif m == 9:
-        A8 = A4 @ A4
+        A8 = mul(A4, A4)
         W = _B9[3] * A2 + _B9[5] * A4 + _B9[7] * A6 + A8
         _add_diag(W, _B9[1])
         V = _B9[2] * A2 + _B9[4] * A4 + _B9[6] * A6 + _B9[8] * A8
         _add_diag(V, _B9[0])
-        U = A @ W
+        U = mul(A, W)
     else:
         W2 = _B[9] * A2 + _B[11] * A4 + _B[13] * A6
         W3 = _B[2] * A2 + _B[4] * A4 + _B[6] * A6
@@ -179,9 +304,9 @@ def _pade(A, A2, A4, A6, m):
         W1 = _B[3] * A2 + _B[5] * A4 + _B[7] * A6
         _add_diag(W1, _B[1])
         _add_diag(W3, _B[0])
-        U = A @ (A6 @ W2 + W1)
-        V = A6 @ W4 + W3
-    X = np.linalg.solve(V - U, U)
+        U = mul(A, mul(A6, W2) + W1)
+        V = mul(A6, W4) + W3
+    X = _solve_many(V - U, U)
     R = 2.0 * X
     _add_diag(R, 1.0)
     return R
@@ -241,9 +366,9 @@ def expm(A):
         for i in range(n):
             R[i, i] = math.exp(A[i, i])
         return R
-    A2 = A @ A
-    A4 = A2 @ A2
-    A6 = A4 @ A2
+    A2 = mul(A, A)
+    A4 = mul(A2, A2)
+    A6 = mul(A4, A2)
     m, s = _pick(A, A2, A4, A6)
     if s != 0:
         f = 2.0 ** (-s)
@@ -262,14 +387,14 @@ def expm(A):
             for i in range(n):
                 R[i, i] = math.exp(d[i] * 2.0 ** (-s))
             for k in range(s - 1, -1, -1):
-                R = R @ R
+                R = mul(R, R)
                 sc = 2.0 ** (-k)
                 for i in range(n):
                     R[i, i] = math.exp(d[i] * sc)
                 _exp_sinch_super(d, sd, sc, R, upper)
         else:
             for _ in range(s):
-                R = R @ R
+                R = mul(R, R)
     if triangular:
         for i in range(n):
             for j in range(n):
@@ -319,3 +444,34 @@ def solve(A, b, out):
             acc -= M[c, j] * out[j]
         out[c] = acc / M[c, c]
     return finite(out)
+
+
+def _inv_np(A, out):
+    try:
+        out[:] = np.linalg.inv(A)
+    except np.linalg.LinAlgError:
+        return False
+    return True
+
+
+@jit(pure=_inv_np)
+def inv(A, out):
+    """out = A^-1 (A unchanged): 1 / a for a 1x1 matrix (what LAPACK's inverse gives), else
+    column by column through ``solve``; False when A is singular (a non-finite A is the
+    caller's to check: its inverse is then not finite either)."""
+    n = A.shape[0]
+    if n == 1:
+        if A[0, 0] == 0.0:
+            return False
+        out[0, 0] = 1.0 / A[0, 0]
+        return True
+    e = np.zeros(n)
+    col = np.empty(n)
+    for j in range(n):
+        e[:] = 0.0
+        e[j] = 1.0
+        if not solve(A, e, col):
+            return False
+        for i in range(n):
+            out[i, j] = col[i]
+    return True

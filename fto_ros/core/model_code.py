@@ -83,14 +83,40 @@ def cache_dir() -> Path:
     return _cache_dir
 
 
+class _ArrayPrinter(_Printer):
+    """Prints each model symbol as its array element (``x[0]``) but orders the terms of a
+    sum or product by the symbols' own names, as sympy.lambdify does: the same text as
+    core/expressions.py's compile_exprs up to the names, so the same floating-point sums
+    in the same order (renaming the symbols before printing would reorder them)."""
+
+    def __init__(self, names: dict, settings: dict):
+        super().__init__(settings)
+        self._names = names
+
+    def _print_Symbol(self, e):
+        name = self._names.get(e)
+        return name if name is not None else super()._print_Symbol(e)
+
+    def _print_Pow(self, e, rational=False):
+        # a whole exponent as a float: Python's x**3 is libm's pow(x, 3.0), numba's a
+        # product (other last bits); x**3.0 is pow in both (numba still squares x**2.0)
+        if e.exp.is_Integer and e.exp != -1 and not rational:
+            base = self.parenthesize(e.base, precedence(e), strict=False)
+            return f"{base}**{float(e.exp)!r}" if e.exp > 0 else f"{base}**({float(e.exp)!r})"
+        return super()._print_Pow(e, rational)
+
+
 def _source(exprs: Sequence[sympy.Expr], groups: Sequence[Sequence[sympy.Symbol]]) -> str:
-    printer = _Printer({"fully_qualified_modules": True, "inline": True, "allow_unknown_functions": False})
-    subs = {}
+    names = {}
     for name, syms in zip(_GROUPS, groups):
         for i, s in enumerate(syms):
-            subs[s] = sympy.Symbol(f"{name}[{i}]")
-    reps, reduced = sympy.cse([sympy.sympify(e).xreplace(subs) for e in exprs],
-                              symbols=sympy.numbered_symbols("c_"))
+            names[s] = f"{name}[{i}]"
+    printer = _ArrayPrinter(names, {"fully_qualified_modules": True, "inline": True,
+                                    "allow_unknown_functions": False})
+    # the common subexpressions as compile_exprs (lambdify, cse=True) finds them: its names
+    # (x0, x1, ... skipping the model's own) order the terms that use them
+    reps, reduced = sympy.cse(tuple(sympy.sympify(e) for e in exprs), list=False)
+    reduced = list(reduced)
     lines = ["import math", "", "", "def fn(x, y, u, out):"]
     lines += [f"    {printer.doprint(v)} = {printer.doprint(e)}" for v, e in reps]
     for i, e in enumerate(reduced):

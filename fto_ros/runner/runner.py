@@ -421,7 +421,9 @@ class Runner:
         if values.shape[2] < width:
             values = np.concatenate((values, np.zeros(values.shape[:2] + (width - values.shape[2],))),
                                     axis=2)
-        values = np.ascontiguousarray(np.broadcast_to(values, (count, J, values.shape[2])))
+        # writable: a broadcast view is read-only, and the compiled loop takes writable arrays
+        values = np.require(np.broadcast_to(values, (count, J, values.shape[2])),
+                            requirements=("C", "W"))
         pre = np.zeros((count, J), np.int16)
         if refused is not None:
             r = np.asarray(refused, dtype=np.int16)

@@ -145,6 +145,8 @@ def _observer(flat: Mapping[str, Any], type_name: Any) -> tuple[type, dict[str, 
     for role in getattr(cls, "CHILD_ROLES", ()):
         child, child_cfg, _ = _observer(flat, cfg[role])
         cfg[role + "_observer"] = (child, child_cfg)
+    if hasattr(cls, "composed_class"):             # the class that runs these children
+        cls = cls.composed_class(cfg)
     return cls, cfg, sub
 
 

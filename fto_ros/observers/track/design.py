@@ -31,22 +31,28 @@ estimate of anything), flagged as not converged, until the acquirer hands over a
 
 Outputs: ``convergence`` carries ``mode`` (0 acquiring, 1 tracking, 2 re-acquiring),
 ``handovers`` and ``reacquisitions`` since the last (re)start after the common fields
-(so a restarted observer publishes what a fresh one does; /diagnostics has the totals); ``converged`` is 1 exactly
-while tracking; ``health`` is the window statistic over its threshold (>= 1 re-acquires).
-No unknown-input estimate is published (the tracker has none).  ROS-free.
+(so a restarted observer publishes what a fresh one does; /diagnostics has the totals);
+``converged`` is 1 exactly while tracking; ``health`` is the window statistic over its
+threshold (>= 1 re-acquires).  No unknown-input estimate is published (the tracker has
+none).
+
+This module is the design (parameters, the children, the test's threshold, the hand-over
+covariance, diagnostics); :class:`TrackObserver` builds the class that runs it: the
+compiled composition (adapter.py and kernel.py, protocol in observers/kernel.py) when the
+acquirer is a compiled kernel, else the previous per-sample Python composition (legacy.py)
+until every acquirer family is compiled.  ROS-free.
 """
 from __future__ import annotations
 
 import math
 import re
-from collections import deque
 from typing import Any
 
 import numpy as np
 from scipy.stats import chi2
 
-from .base import ConfigError, Observer, Param, SampleRejected
-from .ekf import ExtendedKalmanFilter
+from ..base import ConfigError, KernelObserver, Observer, Param
+from ..ekf import ExtendedKalmanFilter
 
 P = "track."
 ACQUIRERS = ("single_delay", "prescribed_time", "hosm", "newton_inversion", "global_norm")
@@ -61,7 +67,16 @@ MAX_NOISE_SKIP = 20_000
 NOISE_SEED = 20261201
 
 
+def compiled_child(cls: type) -> bool:
+    """Whether observers of ``cls`` can run inside the compiled composition: a compiled
+    kernel whose estimate is its state's (no coordinate map applied in Python)."""
+    return issubclass(cls, KernelObserver) and getattr(cls, "state_map", None) is None
+
+
 class TrackObserver(Observer):
+    """The composition's design; ``TrackObserver(cfg)`` is an observer of the class
+    :meth:`composed_class` picks."""
+
     TYPE = "track"
     DESCRIPTION = ("acquire, then track: a guaranteed-time observer hands over to a Kalman "
                    "tracker, with innovation-gated re-acquisition")
@@ -97,6 +112,21 @@ class TrackObserver(Observer):
               min=0.0, read_only=False),
     )
 
+    def __new__(cls, cfg=None):
+        if cls is TrackObserver and cfg is not None:
+            cls = TrackObserver.composed_class(cfg)
+        return super().__new__(cls)
+
+    @staticmethod
+    def composed_class(cfg: dict) -> type["TrackObserver"]:
+        """The class that runs the composition configured by ``cfg``: compiled when the
+        acquirer is a compiled kernel (the tracker always is), else the Python composition
+        of the families not yet compiled."""
+        from .adapter import TrackKernelObserver
+        from .legacy import LegacyTrackObserver
+        acq_cls = cfg["acquirer_observer"][0]
+        return TrackKernelObserver if compiled_child(acq_cls) else LegacyTrackObserver
+
     def __init__(self, cfg: dict):
         (acq_cls, acq_cfg), (trk_cls, trk_cfg) = cfg["acquirer_observer"], cfg["tracker_observer"]
         self._make_acquirer = lambda: acq_cls(acq_cfg)
@@ -128,13 +158,6 @@ class TrackObserver(Observer):
         else:
             self.handover_covariance = self._noise_covariance()
             self.covariance_source = "measured: the acquirer on measurement noise alone"
-        self.handovers = self.reacquisitions = 0      # over the observer's life (diagnostics)
-        self._run_handovers = self._run_reacquisitions = 0   # since the last (re)start
-        self._mode = ACQUIRING
-        self._nis: deque[float] = deque()
-        self._nis_sum = 0.0
-        self._quiet = 0
-        self._t = math.nan
 
     # -- the acquirer's noise gain ---------------------------------------------------------
     def _noise_covariance(self) -> np.ndarray:
@@ -168,139 +191,26 @@ class TrackObserver(Observer):
         # keep it positive definite: a floor of 1e-12 of its scale on the diagonal
         return C + np.eye(self.n_states) * max(1e-300, 1e-12 * float(np.trace(C)))
 
-    # -- protocol --------------------------------------------------------------------------
-    def update_checked(self, t, y, u):
-        self._t = t                                   # the children keep their own clocks
-        super().update_checked(t, y, u)
-
-    @property
-    def max_step(self):
-        return min(self.acquirer.max_step, self.tracker.max_step)
-
-    def _restart(self, x0_hat):
-        self.acquirer.reset(None, x0_hat)
-        self.tracker.reset(None)
-        self._mode = ACQUIRING
-        self._run_handovers = self._run_reacquisitions = 0
-        self._clear_window()
-        self._quiet = 0
-
-    def _first(self, y, u, gap):
-        self.acquirer.update_checked(self._t, y, u)
-        self._acquired(y, u)
-
-    def _step(self, s, h, y, u):
-        t = self._t
-        if self._mode == ACQUIRING:
-            self.acquirer.update_checked(t, y, u)     # a rejection leaves both untouched
-            self._acquired(y, u)
-            return
-        self.tracker.update_checked(t, y, u)          # a rejection leaves both untouched
-        if self._mode == REACQUIRING:
-            try:
-                self.acquirer.update_checked(t, y, u)
-            except SampleRejected:
-                self.acquirer.reset(None)             # acquire afresh from the next sample
-                return
-            self._acquired(y, u)
-            return
-        if self._inconsistent(self.tracker.nis):
-            self.reacquisitions += 1
-            self._run_reacquisitions += 1
-            self._mode = REACQUIRING
-            self._clear_window()
-            self._quiet = 0
-            self.acquirer.reset(None)
-            self.acquirer.update_checked(t, y, u)
-
-    def _acquired(self, y, u) -> None:
-        """Hand over when the acquirer's guarantee (or certificate) holds at this sample."""
-        a = self.acquirer
-        gt = a.guaranteed_time
-        if math.isfinite(gt):
-            ready = a.time_since_start >= gt - 1e-9
-        else:
-            res = a.output_residual
-            self._quiet = self._quiet + 1 if math.isfinite(res) and \
-                res <= self.certificate_residual else 0
-            ready = self._quiet >= self.certificate_samples
-        if not ready:
-            return
-        k = self.tracker
-        x0 = np.array(a.estimate, dtype=float)
-        k.P0 = self.handover_covariance
-        k.reset(None, x0)
-        try:
-            k.update_checked(self._t, y, u)
-        except SampleRejected:
-            # the tracker cannot start here: publish the acquirer (past its guarantee) and
-            # try again at the next sample
-            k.reset(None)
-            self._mode = ACQUIRING
-            return
-        self.handovers += 1
-        self._run_handovers += 1
-        self._mode = TRACKING
-        self._clear_window()
-
-    def _clear_window(self) -> None:
-        self._nis.clear()
-        self._nis_sum = 0.0
-
-    def _inconsistent(self, nis: float) -> bool:
-        """Add the tracker's NIS to the window; whether the window test fails."""
-        v = min(nis, self.clip) if math.isfinite(nis) else self.clip
-        self._nis.append(v)
-        self._nis_sum += v
-        if len(self._nis) > self.window:
-            self._nis_sum -= self._nis.popleft()
-        elif len(self._nis) == self.window:
-            self._nis_sum = math.fsum(self._nis)      # once per fill: no drift
-        return len(self._nis) == self.window and self._nis_sum > self.threshold
-
-    # -- outputs ---------------------------------------------------------------------------
-    @property
-    def _published(self) -> Observer:
-        return self.acquirer if self._mode == ACQUIRING else self.tracker
-
-    @property
-    def estimate(self):
-        return self._published.estimate
-
-    @property
-    def output_residual(self):
-        return self._published.output_residual
-
-    @property
-    def guaranteed_time(self):
-        return self.acquirer.guaranteed_time
-
-    @property
-    def converged(self) -> bool:
-        return self._mode == TRACKING
+    # -- what the running composition reports (its class keeps the state) --------------------
+    def _summary(self) -> tuple[int, int, int, int, int, float, int]:
+        """(mode, hand-overs and re-acquisitions over the observer's life, the same since
+        the last restart, the NIS window's sum and its length)."""
+        raise NotImplementedError
 
     @property
     def mode(self) -> str:
-        return MODE_NAMES[self._mode]
-
-    def convergence_extra(self) -> tuple[float, ...]:
-        return float(self._mode), float(self._run_handovers), float(self._run_reacquisitions)
-
-    @property
-    def health(self):
-        if self._mode != TRACKING or not self._nis:
-            return 0.0
-        return self._nis_sum / self.threshold
+        return MODE_NAMES[self._summary()[0]]
 
     def diagnostics(self) -> dict[str, Any]:
+        mode, handovers, reacq, run_handovers, run_reacq, win_sum, win_len = self._summary()
         out = {
-            "mode": self.mode,
-            "hand-overs": str(self.handovers),
-            "re-acquisitions": str(self.reacquisitions),
-            "since the last restart": f"{self._run_handovers} hand-over(s), "
-                                      f"{self._run_reacquisitions} re-acquisition(s)",
-            "NIS window sum / threshold": f"{self._nis_sum:.4g} / {self.threshold:.4g} over "
-                                         f"{len(self._nis)} of {self.window} samples",
+            "mode": MODE_NAMES[mode],
+            "hand-overs": str(handovers),
+            "re-acquisitions": str(reacq),
+            "since the last restart": f"{run_handovers} hand-over(s), "
+                                      f"{run_reacq} re-acquisition(s)",
+            "NIS window sum / threshold": f"{win_sum:.4g} / {self.threshold:.4g} over "
+                                         f"{win_len} of {self.window} samples",
             "false alarms (bound)": f"{self.false_alarm:.3g} per test, "
                                     f"{self.false_alarm / self.sample_period * 3600:.3g} per "
                                     f"hour at {1 / self.sample_period:g} Hz",

@@ -1,0 +1,153 @@
+"""Per-sample kernel of the continuous-discrete EKF (protocol: observers/kernel.py).
+
+A sample interval h is predicted in k = min(MAX_SUBSTEPS, ceil(h / sub_step)) equal
+sub-steps, each one matrix exponential of the Van Loan block matrix linearised at its start
+(adapter.py has the filter), then corrected with the sample (Joseph form, NIS).  The first
+sample after a restart is a correction only.  The arithmetic is the numpy code's, in its
+order: the numpy path (FTO_ROS_NUMBA=0) runs this code with scipy's expm; compiled, the
+exponential is core/linalg.py's ``expm`` (scipy's algorithm, not bit for bit with it) and
+the products numba's (BLAS).
+
+State:   header | x (n) | P (n x n) | u of the last sample (m) | innovation nu (p) |
+         S (p x p) | sum of the NIS since the restart | updates since the restart
+         (st[HEALTH] is the NIS of the last update, nan before one)
+Consts:  header | sub_step | Qc (n x n) | R (p x p) | P0 (n x n)
+Ints:    header | n, p, m, foh, then the state offsets of P, u, nu, S, the NIS sum, the
+         update count
+Work:    none (the temporaries are new arrays, as in the exponential)
+Models:  [f(x, u) (n) then df/dx (n x n, row-major), h(x, u) (p) then dh/dx (p x n)]
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ...core import jit as J
+from ...core.jit import jit
+from ...core.linalg import dot, expm, finite, inv, mul, mulv, norm, vmul
+from ...core.reasons import CODE
+from ..kernel import C_HEADER, HEADER, HEALTH, IC_HEADER, RESIDUAL
+
+N, P, M, FOH, ST_P, ST_U, ST_NU, ST_S, ST_NIS_SUM, ST_UPDATES = range(IC_HEADER, IC_HEADER + 10)
+SUB_STEP = C_HEADER
+#: most sub-steps one sample interval is split into
+MAX_SUBSTEPS = 100
+_NON_FINITE_MODEL = CODE["non_finite_model"]
+_NON_FINITE = CODE["non_finite_estimate"]
+_SINGULAR_S = CODE["singular_innovation_covariance"]
+
+
+def layout(n: int, p: int, m: int) -> tuple[list[int], int]:
+    """(the state offsets after the header ints n, p, m, foh, state size)."""
+    o = HEADER + n
+    offs = []
+    for width in (n * n, m, p, p * p, 1, 1):
+        offs.append(o)
+        o += width
+    return offs, o
+
+
+@jit
+def _consts(c, ic):
+    n, p = ic[N], ic[P]
+    o = C_HEADER + 1
+    Qc = c[o:o + n * n].reshape(n, n)
+    o += n * n
+    R = c[o:o + p * p].reshape(p, p)
+    o += p * p
+    P0 = c[o:o + n * n].reshape(n, n)
+    return Qc, R, P0
+
+
+@jit
+def _restart(st, c, ic, x0, has_x0):
+    n = ic[N]
+    Qc, R, P0 = _consts(c, ic)
+    for i in range(n):
+        st[HEADER + i] = x0[i] if has_x0 else 0.0
+    st[ic[ST_P]:ic[ST_P] + n * n] = P0.ravel()
+    st[HEALTH] = math.nan
+    st[RESIDUAL] = math.nan
+    st[ic[ST_NIS_SUM]] = 0.0
+    st[ic[ST_UPDATES]] = 0.0
+    return 0
+
+
+@jit
+def _predict(x, Pm, u, dt, Qc, models, vals):
+    """(True, x, P) after one linearised exact sub-step of length dt from (x, P); (False,
+    ...) when the model is not finite there.  (The models take no y: u stands in.)"""
+    n = x.shape[0]
+    models[0](x, u, u, vals)
+    A = vals[n:].reshape(n, n)
+    Mb = np.zeros((2 * n + 1, 2 * n + 1))
+    Mb[1:n + 1, n + 1:] = Qc
+    Mb[0, n + 1:] = vals[:n]
+    Mb[1:n + 1, 1:n + 1] = -A
+    Mb[n + 1:, n + 1:] = A.T
+    if not math.isfinite(Mb.sum()):
+        return False, x, Pm
+    E = expm(Mb * dt)
+    Phi = E[n + 1:, n + 1:].T
+    Qd = mul(Phi, E[1:n + 1, n + 1:])
+    return True, x + E[0, n + 1:], mul(mul(Phi, Pm), Phi.T) + 0.5 * (Qd + Qd.T)
+
+
+@jit
+def _take(st, nx, c, ic, h, y, u, models):
+    """Predict over h (none for h = 0) and correct with (y, u) into nx."""
+    n, p, m = ic[N], ic[P], ic[M]
+    Qc, R, P0 = _consts(c, ic)
+    x = st[HEADER:HEADER + n].copy()
+    Pm = st[ic[ST_P]:ic[ST_P] + n * n].reshape(n, n).copy()
+    if h > 0.0:
+        u0 = st[ic[ST_U]:ic[ST_U] + m]
+        held = 0.5 * (u0 + u) if ic[FOH] else u0.copy()
+        k = min(MAX_SUBSTEPS, max(1, math.ceil(h / c[SUB_STEP] - 1e-9)))
+        vals = np.empty(n + n * n)
+        for _ in range(k):
+            ok, x, Pm = _predict(x, Pm, held, h / k, Qc, models, vals)
+            if not ok:
+                return _NON_FINITE_MODEL
+    vals = np.empty(p + p * n)
+    if models[1](x, u, u, vals) != 0:
+        return _NON_FINITE_MODEL
+    nu = y - vals[:p]
+    H = vals[p:].reshape(p, n)
+    PHt = mul(Pm, H.T)
+    S = mul(H, PHt) + R
+    if not finite(S.ravel()):
+        return _NON_FINITE
+    Si = np.empty((p, p))
+    if not inv(S, Si):
+        return _SINGULAR_S
+    K = mul(PHt, Si)
+    nis = dot(vmul(nu, Si), nu)
+    x = x + mulv(K, nu)
+    IKH = np.eye(n) - mul(K, H)
+    Pm = mul(mul(IKH, Pm), IKH.T) + mul(mul(K, R), K.T)
+    Pm = 0.5 * (Pm + Pm.T)
+    if not math.isfinite(x.sum() + Pm.sum() + nis):      # one check for all
+        return _NON_FINITE
+    nx[HEADER:HEADER + n] = x
+    nx[ic[ST_P]:ic[ST_P] + n * n] = Pm.ravel()
+    nx[ic[ST_U]:ic[ST_U] + m] = u
+    nx[ic[ST_NU]:ic[ST_NU] + p] = nu
+    nx[ic[ST_S]:ic[ST_S] + p * p] = S.ravel()
+    nx[HEALTH] = nis
+    nx[RESIDUAL] = norm(nu)
+    nx[ic[ST_NIS_SUM]] += nis
+    nx[ic[ST_UPDATES]] += 1.0
+    return 0
+
+
+def kernel(op, st, nx, c, ic, wk, a, b, y, u, models):
+    """The protocol's one entry (observers/kernel.py)."""
+    if op == J.STEP:
+        return _take(st, nx, c, ic, b, y, u, models)
+    if op == J.FIRST:
+        return _take(st, nx, c, ic, 0.0, y, u, models)
+    if op == J.RESTART:
+        return _restart(st, c, ic, y, a > 0.0)
+    return 0
