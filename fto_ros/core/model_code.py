@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Sequence
 
 import sympy
+from sympy.printing.precedence import precedence
 from sympy.printing.pycode import PythonCodePrinter
 
 from . import jit as J
@@ -49,6 +50,14 @@ class _Printer(PythonCodePrinter):
 
     def _print_ceiling(self, e):
         return f"float(math.ceil({self._print(e.args[0])}))"
+
+    def _print_Pow(self, e, rational=False):
+        # an integer exponent as a float: numba compiles x**3 as multiplications, Python
+        # (and numba's x**3.0) calls libm's pow; the two differ in the last bit
+        if e.exp.is_Integer and e.exp != -1:
+            base = self.parenthesize(e.base, precedence(e), strict=False)
+            return f"{base}**({float(e.exp)!r})"
+        return super()._print_Pow(e, rational=rational)
 
 
 def cache_dir() -> Path:
