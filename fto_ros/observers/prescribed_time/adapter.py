@@ -73,7 +73,7 @@ from ...core.model_code import ModelFunction
 from ...core.step_cache import cache_floats, cache_init
 from .. import kernel as K
 from ..base import ConfigError, KernelObserver, Param, matrix
-from . import kernel
+from . import kernel, layout, windows
 from .design import (GUARD_DEFAULT, GUARD_FROM_ORDER, MAX_M, MAX_ORDER, bandwidth_factor,
                      c_matrix, gain_coefficients, hurwitz_roots, inverse_unit_lower,
                      is_hurwitz, mu_at_gain, p_bar)
@@ -266,12 +266,12 @@ class PrescribedTimeObserver(KernelObserver):
         self._build(Ap, np.hstack(cols))
 
     def _build(self, Ap: np.ndarray, B: np.ndarray) -> None:
-        """The kernel's arrays (kernel.py has the layout)."""
+        """The kernel's arrays (kernel.py documents them, layout.py places them)."""
         n, w = self.n, B.shape[1]
         zeros = np.zeros(n)
         arrays = (self.Hg, self.C, self.Cinv, self.l, zeros if self.g_end is None else self.g_end,
                   Ap, B, np.eye(n) if self.Smap is None else self.Smap, self._exps)
-        offsets, o = [], kernel.C_ARRAYS
+        offsets, o = [], layout.C_ARRAYS
         for arr in arrays:
             offsets.append(o)
             o += arr.size
@@ -279,31 +279,31 @@ class PrescribedTimeObserver(KernelObserver):
                              self.T, self.s_end, self.beta_guard, float(n + self.m)],
                             *(np.ravel(arr) for arr in arrays)))
         slots = CACHE_SLOTS
-        caches = [kernel.WK_HEADER]
+        caches = [layout.WK_HEADER]
         for size in (n * (n + 2 * w), n * n, n * n):
             caches.append(caches[-1] + cache_floats(slots, size))
-        wk = np.zeros(caches[-1] + kernel.scratch_size(n, w))
+        wk = np.zeros(caches[-1] + layout.scratch_size(n, w))
         for base in caches[:3]:
             cache_init(wk, base, slots)
-        wk[kernel.WK_AFTER_ID] = -1.0
-        ic = K.layout_ic(n, kernel.X_PUB, extra_ints=(
-            n, self.n_inputs, int(self.F is not None), kernel.MODES.index(self.mode),
+        wk[layout.WK_AFTER_ID] = -1.0
+        ic = K.layout_ic(n, layout.X_PUB, extra_ints=(
+            n, self.n_inputs, int(self.F is not None), layout.MODES.index(self.mode),
             int(self.g_end is not None), int(self.Smap is not None),
             int(self.reset_keeps_estimate), int(self.foh_input), w, *caches, slots, *offsets))
         models = () if self.F is None else (
             ModelFunction(self.F.exprs, [[], self.F.y_syms, self.F.u_syms]),)
-        self._build_kernel(c, ic, wk, kernel.state_size(n), models=models)
+        self._build_kernel(c, ic, wk, layout.state_size(n), models=models)
         st = self._st
         st[K.GUARANTEED] = self.T
         st[K.HEALTH] = 0.0
-        st[kernel.HAS_FROZEN] = float(self.mode == "constant" and self.g_end is not None)
-        st[kernel.FROZEN_ID] = -1.0
+        st[layout.HAS_FROZEN] = float(self.mode == "constant" and self.g_end is not None)
+        st[layout.FROZEN_ID] = -1.0
         self._state_vec(3)[:] = zeros if self.g_end is None else self.g_end
 
     # -- the paper's functions ----------------------------------------------------
     def gains_at(self, mu: float) -> np.ndarray:
         """g_1..g_n at mu_1 = mu (Lemma 4 polynomials), into a preallocated buffer."""
-        kernel.gains(self.Hg, self._exps, float(mu), self._cell, self._mu_pow, self._g)
+        windows.gains(self.Hg, self._exps, float(mu), self._cell, self._mu_pow, self._g)
         return self._g
 
     def transition_window(self, v: np.ndarray, sa: float, sb: float) -> np.ndarray:
@@ -312,14 +312,14 @@ class PrescribedTimeObserver(KernelObserver):
         Exact (Lemma 1): the scaled product of the module docstring; sb = T gives 0.
         """
         out = np.empty(self.n)
-        kernel.transition(self._c, self._ic, self._wk, np.ascontiguousarray(v, dtype=float),
+        windows.transition(self._c, self._ic, self._wk, np.ascontiguousarray(v, dtype=float),
                           float(sa), float(sb), out)
         return out
 
     # -- what the state says ----------------------------------------------------------
     def _state_vec(self, k: int) -> np.ndarray:
         """State vector k (kernel.py: 0 x published, 1 x, 2 F, 3 frozen gains), a view."""
-        o = kernel.X_PUB + k * self.n
+        o = layout.X_PUB + k * self.n
         return self._st[o:o + self.n]
 
     def _flag(self, i: int) -> bool:
@@ -329,15 +329,15 @@ class PrescribedTimeObserver(KernelObserver):
     def _t(self) -> float | None:
         """Model time of the last sample since the first one ever (None: none since the
         last restart)."""
-        return float(self._st[kernel.T_MODEL]) if self._flag(kernel.HAS_T) else None
+        return float(self._st[layout.T_MODEL]) if self._flag(layout.HAS_T) else None
 
     @property
     def _tw(self) -> float:
-        return float(self._st[kernel.TW])
+        return float(self._st[layout.TW])
 
     @property
     def _frozen(self) -> np.ndarray | None:
-        return self._state_vec(3).copy() if self._flag(kernel.HAS_FROZEN) else None
+        return self._state_vec(3).copy() if self._flag(layout.HAS_FROZEN) else None
 
     @property
     def gains(self) -> np.ndarray:
@@ -345,39 +345,39 @@ class PrescribedTimeObserver(KernelObserver):
         if self._t is None:
             return np.zeros(self.n)
         out = np.empty(self.n)
-        kernel._gains_now(self._st, self._c, self._ic, self._wk, self._t, out)
+        kernel.gains_now(self._st, self._c, self._ic, self._wk, self._t, out)
         return out
 
     @property
     def injections(self) -> np.ndarray:
         """gamma_i = g_i (y - x_hat_1) at the last sample (Theorem 1: bounded)."""
-        return self.gains * float(self._st[kernel.POST])
+        return self.gains * float(self._st[layout.POST])
 
     @property
     def window_start(self) -> float:
         """Start of the current window (the stamps' time base)."""
-        return float(self._clk[K.CLK_T0] + self._tw - self._st[kernel.KSTART] * STEP_QUANTUM)
+        return float(self._clk[K.CLK_T0] + self._tw - self._st[layout.KSTART] * STEP_QUANTUM)
 
     @property
     def after_window(self) -> bool:
-        return self._flag(kernel.AFTER)
+        return self._flag(layout.AFTER)
 
     @property
     def restarts(self) -> int:
         """Window restarts since the last reset (mode restart)."""
-        return int(self._st[kernel.RESTARTS])
+        return int(self._st[layout.RESTARTS])
 
     @property
     def restarts_total(self) -> int:
-        return int(self._st[kernel.RESTARTS_TOTAL])
+        return int(self._st[layout.RESTARTS_TOTAL])
 
     @property
     def last_end(self) -> tuple[float, str] | None:
         """(model time, reason) of the last window end, or None."""
-        if not self._flag(kernel.HAS_END):
+        if not self._flag(layout.HAS_END):
             return None
-        why = "sampling limit" if self._st[kernel.END_REASON] == kernel.END_SAMPLING else self.end_reason
-        return float(self._st[kernel.END_T]), why
+        why = "sampling limit" if self._st[layout.END_REASON] == layout.END_SAMPLING else self.end_reason
+        return float(self._st[layout.END_T]), why
 
     def diagnostics(self):
         out = {
@@ -405,7 +405,7 @@ class PrescribedTimeObserver(KernelObserver):
         out["restarts (since reset)"] = str(self.restarts)
         out["restarts (total)"] = str(self.restarts_total)
         out["largest gain now"] = f"{float(np.max(np.abs(self.gains))):.4g}"
-        out["largest gain since reset"] = f"{float(self._st[kernel.G_PEAK]):.4g}"
+        out["largest gain since reset"] = f"{float(self._st[layout.G_PEAK]):.4g}"
         out["gamma_i = g_i (y - x_hat_1)"] = ", ".join(f"{v:.4g}" for v in self.injections)
         out["largest |gamma_i| (health)"] = f"{self.health:.4g}"
         return out
