@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Sequence
 
 import sympy
-from sympy.printing.precedence import precedence
+from sympy import S
 from sympy.printing.pycode import PythonCodePrinter
 
 from . import jit as J
@@ -52,12 +52,13 @@ class _Printer(PythonCodePrinter):
         return f"float(math.ceil({self._print(e.args[0])}))"
 
     def _print_Pow(self, e, rational=False):
-        # an integer exponent as a float: numba compiles x**3 as multiplications, Python
-        # (and numba's x**3.0) calls libm's pow; the two differ in the last bit
-        if e.exp.is_Integer and e.exp != -1:
-            base = self.parenthesize(e.base, precedence(e), strict=False)
-            return f"{base}**({float(e.exp)!r})"
-        return super()._print_Pow(e, rational=rational)
+        # libm's pow, as Python's ** on floats: numba's ** is rewritten by LLVM for constant
+        # exponents (x**2 as x*x, x**3 as products), which differs in the last bit
+        # (core/powers.py); square roots and 1/x print as before, in both paths
+        if e.exp in (S.Half, -S.Half, S.NegativeOne):
+            return super()._print_Pow(e, rational=rational)
+        exp = f"{float(e.exp)!r}" if e.exp.is_Number else self._print(e.exp)
+        return f"pow_({self._print(e.base)}, {exp})"
 
 
 def cache_dir() -> Path:
@@ -89,7 +90,8 @@ def _source(exprs: Sequence[sympy.Expr], groups: Sequence[Sequence[sympy.Symbol]
             subs[s] = sympy.Symbol(f"{name}[{i}]")
     reps, reduced = sympy.cse([sympy.sympify(e).xreplace(subs) for e in exprs],
                               symbols=sympy.numbered_symbols("c_"))
-    lines = ["import math", "", "", "def fn(x, y, u, out):"]
+    lines = ["import math", "", "from fto_ros.core.powers import pow_", "", "",
+             "def fn(x, y, u, out):"]
     lines += [f"    {printer.doprint(v)} = {printer.doprint(e)}" for v, e in reps]
     for i, e in enumerate(reduced):
         lines.append(f"    out[{i}] = {printer.doprint(e)}")

@@ -28,7 +28,7 @@ The after-window matrices depend on the frozen gains: every new set of frozen ga
 a new id from a counter in the work memory (never reused), and the cache is emptied when
 it holds another id's matrices, so a rejected step that froze gains leaves nothing wrong
 behind.  The powers (mu^k, the diagonal scalings) are numpy's own array ``power``
-(core/numpy_loops.py): its SIMD code differs from libm's ``pow`` in the last bit of ~5 % of
+(core/powers.py): its SIMD code differs from libm's ``pow`` in the last bit of ~5 % of
 the results, and near the end of a window such a bit shows as 4e-12 of the state's scale.
 The step matrices are built where a step size is first met with the numpy and scipy code
 the observer had before it was compiled (object mode), so both paths step with the same

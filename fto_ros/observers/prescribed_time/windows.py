@@ -2,7 +2,7 @@
 error system's transition inside a window in closed form (Lemma 1), the steps past a
 window's end (free, or with frozen gains), the crossing of window ends per mode, and the
 sampling guard.  The step matrices are cached per step size in the work memory; the powers
-are numpy's own (core/numpy_loops.py).  kernel.py has the method and the layout.
+are numpy's own (core/powers.py).  kernel.py has the method and the layout.
 
 ROS-free.
 """
@@ -16,7 +16,7 @@ from scipy.linalg import expm
 from ...core import jit as J
 from ...core.jit import jit, numba
 from ...core.linalg import matvec
-from ...core.numpy_loops import power
+from ...core.powers import power
 from ...core.reasons import CODE
 from ...core.step_cache import cache_claim, cache_clear, cache_find
 from .design import is_hurwitz
@@ -79,7 +79,7 @@ else:
     balanced, solve, hurwitz = _balanced, _solve_py, _hurwitz_py
 
 
-# -- powers: numpy's own array power (core/numpy_loops.py), as the code before the kernel --
+# -- powers: numpy's own array power (core/powers.py), as the code before the kernel --
 def _powers_np(mu, exps, cell, out):
     np.power(mu, exps, out=out)
 

@@ -1,20 +1,26 @@
-"""numpy's own array ``power``, called from compiled code.
+"""Powers from compiled code exactly as numpy and Python compute them.
 
-numpy computes ``np.power`` on float64 arrays with SIMD code of its own (SVML on AVX-512
-machines), which differs from the C library's ``pow`` that numba compiles in the last bit
-of ~5 % of the results.  A kernel that must reproduce numpy code bit for bit where such a
-difference is amplified (prescribed_time: the scalings of its transition near the end of a
-window) calls numpy's inner loop itself:
+Two ways compiled code would compute a power differently from the Python and numpy code the
+kernels replaced (each shows in the last bit of some results, and some kernels amplify it):
 
-- the loop's address is read from the ufunc object (``PyUFuncObject.functions``, the public
-  struct of numpy's C API: the first float64 loop is the one numpy runs), and checked
-  against ``np.power`` on probe values at import;
-- it is registered with LLVM under a symbol name that compiled code calls, so compiled
-  code refers to it by name and stays cacheable across processes (the address changes);
-- where the check fails, the same symbol is a loop over libm's ``pow`` (compiled here), so
-  cached code still links; ``NATIVE`` says which one runs.
+- ``pow_(x, y)``: Python's ``x ** y`` for floats is the C library's ``pow``; numba's
+  ``x ** y`` is LLVM's pow, which LLVM rewrites for constant exponents (x ** 2.0 becomes
+  x * x, x ** 3 a product: different in ~0.1 % and ~25 % of the results).  ``pow_`` calls
+  libm's pow under a name LLVM does not know, so nothing is rewritten.  Model terms
+  (core/model_code.py) print their powers with it.
+- ``power(a, a_step, b, out)``: numpy's ``np.power`` on float64 arrays runs SIMD code of
+  its own (SVML on AVX-512 machines), which differs from libm's pow in the last bit of ~5 %
+  of the results.  A kernel that reproduces numpy code where such a bit is amplified
+  (prescribed_time: the scalings of its transition near the end of a window) calls numpy's
+  inner loop itself.  The loop's address is read from the ufunc object
+  (``PyUFuncObject.functions``, the public struct of numpy's C API: the first float64 loop
+  is the one numpy runs) and checked against ``np.power`` on probe values at import; where
+  the check fails, a loop over libm's pow (compiled here) stands in, and ``NATIVE`` says
+  which one runs.
 
-Without numba, ``power`` is numpy's own call.  ROS-free.
+Both are registered with LLVM by name at import, so compiled code that calls them stays
+cacheable across processes (the addresses change).  Without numba, ``pow_`` is Python's
+``**`` and ``power`` numpy's own call.  ROS-free.
 """
 from __future__ import annotations
 
@@ -28,6 +34,7 @@ from .jit import jit
 
 LOG = logging.getLogger("fto_ros.jit")
 _SYMBOL = "fto_ros_numpy_power_float64"
+_POW = "fto_ros_libm_pow"
 #: whether compiled code calls numpy's own power loop (False: libm's pow, or numba off)
 NATIVE = False
 
@@ -90,6 +97,10 @@ def _power_np(a, a_step, b, out):
     np.power(a[0] if a_step == 0 else a[:out.shape[0]], b[:out.shape[0]], out=out)
 
 
+def _pow_py(x, y):
+    return x ** y
+
+
 if J.ENABLED:
     import llvmlite.binding as _ll
     from llvmlite import ir as _ir
@@ -113,6 +124,27 @@ if J.ENABLED:
         LOG.warning("numpy's power loop not found or not reproducible: compiled kernels use "
                     "libm's pow (last-bit differences from the numpy path)")
     _ll.add_symbol(_SYMBOL, _address)
+    _ll.add_symbol(_POW, ctypes.cast(ctypes.CDLL(None).pow, ctypes.c_void_p).value)
+
+    @_intrinsic
+    def _pow_call(typingctx, x, y):
+        """libm's pow(x, y), called by a name LLVM does not rewrite."""
+        if not (isinstance(x, _t.Number) and isinstance(y, _t.Number)):
+            return None
+        sig = _t.float64(x, y)
+
+        def codegen(context, builder, signature, args):
+            d = _ir.DoubleType()
+            a = context.cast(builder, args[0], signature.args[0], _t.float64)
+            b = context.cast(builder, args[1], signature.args[1], _t.float64)
+            fn = _cg.get_or_insert_function(builder.module, _ir.FunctionType(d, [d, d]), _POW)
+            return builder.call(fn, [a, b])
+        return sig, codegen
+
+    @jit
+    def pow_(x, y):
+        """x ** y as Python computes it for floats (libm's pow)."""
+        return _pow_call(x, y)
 
     @_intrinsic
     def _loop(typingctx, a, sa, b, sb, o, so, n):
@@ -145,3 +177,4 @@ if J.ENABLED:
         _loop(a.ctypes.data, a_step * 8, b.ctypes.data, 8, out.ctypes.data, 8, out.shape[0])
 else:
     power = _power_np
+    pow_ = _pow_py
