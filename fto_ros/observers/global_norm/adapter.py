@@ -209,13 +209,26 @@ class GlobalNormObserver(KernelObserver):
         """The kernel's arrays (kernel.py has the layout)."""
         m, dim, nin = self.n_states, self._dim, self.n_inputs
         ic = K.layout_ic(m, kernel.X_HAT, extra_ints=(
-            m, dim, nin, int(self.reduced), int(self.quadratic), 0))
+            m, dim, nin, int(self.reduced), int(self.quadratic), 0, 0))
         ysym = self.f.syms[0]
         models = (ModelFunction(outs, [[wsym]]),
                   ModelFunction(self.f.exprs, [self.f.syms[1:m], [ysym], self.f.syms[m:]]),
                   ModelFunction(self.gamma_1.exprs, [[], self.gamma_1.syms]))
-        self._build_kernel(np.array([math.inf, self.w0]), ic, np.zeros(kernel.scratch_size(m, dim)),
-                           kernel.state_size(m, dim, nin), models=models)
+        eye = np.eye(m).ravel()
+        self._build_kernel(np.concatenate(([math.inf, self.w0], eye, eye)), ic,
+                           np.zeros(kernel.scratch_size(m, dim)), kernel.state_size(m, dim, nin),
+                           models=models)
+        self._restart(None)
+
+    def map_states(self, T: np.ndarray) -> None:
+        """Run on z = T x and take and publish plant coordinates (plant/mapped.py): an initial
+        estimate x0 becomes T x0, the estimate is T^-1 z_hat."""
+        m = self.n_states
+        T = np.array(T, dtype=float)
+        self._c[kernel.T_MAP:kernel.T_MAP + 2 * m * m] = np.concatenate(
+            (T.ravel(), np.linalg.inv(T).ravel()))
+        self._ic[kernel.MAPPED] = 1
+        self._ic[K.EST] = kernel.published(m, self._dim, self.n_inputs)
         self._restart(None)
 
     # -- what the state says ------------------------------------------------------------

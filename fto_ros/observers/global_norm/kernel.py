@@ -7,10 +7,12 @@ afresh (companion.py: closed form for two states), then the exact linear step wi
 model term as a predictor-corrector pair (Heun), the model term saturated at gamma_hat.
 
 State:   header | w, y, has y_prev, y_prev, h_prev, gamma_1(y), gamma_hat, saturation
-         active, saturated steps, steps | x_hat (m) | k(w) (dim) | u held over the step (n_u)
-Consts:  header | w0
+         active, saturated steps, steps | x_hat (m) | k(w) (dim) | u held over the step (n_u) |
+         the published estimate T^-1 x_hat (m; only with a state map)
+Consts:  header | w0 | T (m x m), T^-1 (m x m): the observer runs on z = T x (the plant's
+         observability form, plant/mapped.py; identity without a map)
 Ints:    header | m, dim (m, or m - 1 in the reduced form), n_u, reduced, quadratic hold,
-         scratch base
+         scratch base, state map (0/1)
 Work:    scratch: the gains at w(mid) and w(end) (1 + m + dim each), e^(A h) (dim^2), its
          work (2 dim^2), G, x_s, r0, r1, r2, x_p, x (dim each), the model's x (m - 1), the
          step's work (5 dim), two cells, the complex work (2 dim complex = 4 dim floats)
@@ -28,12 +30,14 @@ import numpy as np
 
 from ...core import jit as J
 from ...core.jit import jit
+from ...core.linalg import matvec
 from ...core.reasons import CODE
 from ..kernel import C_HEADER, HEADER, HEALTH, IC_HEADER, RESIDUAL
 from .companion import companion_expm, companion_step, norm_estimator_step, output_polynomial
 
-M, DIM, NIN, REDUCED, QUAD, SCRATCH = range(IC_HEADER, IC_HEADER + 6)
+M, DIM, NIN, REDUCED, QUAD, SCRATCH, MAPPED = range(IC_HEADER, IC_HEADER + 7)
 W0 = C_HEADER
+T_MAP = C_HEADER + 1
 (W, Y, HAS_YPREV, YPREV, HPREV, G1, GH, SAT_ACTIVE, SAT_COUNT, STEPS) = range(HEADER, HEADER + 10)
 X_HAT = HEADER + 10
 GAINS, F, GAMMA_1 = 0, 1, 2
@@ -45,7 +49,21 @@ _NON_FINITE_GAMMA_1 = CODE["non_finite_gamma_1"]
 
 
 def state_size(m: int, dim: int, nin: int) -> int:
+    return X_HAT + 2 * m + dim + nin
+
+
+def published(m: int, dim: int, nin: int) -> int:
+    """Where the published estimate is with a state map."""
     return X_HAT + m + dim + nin
+
+
+@jit
+def _publish(s, c, ic):
+    """The published estimate T^-1 x_hat (with a state map; else x_hat is published)."""
+    m = ic[M]
+    if ic[MAPPED]:
+        o = X_HAT + m + ic[DIM] + ic[NIN]
+        matvec(c[T_MAP + m * m:T_MAP + 2 * m * m].reshape(m, m), s[X_HAT:X_HAT + m], s[o:o + m])
 
 
 def scratch_size(m: int, dim: int) -> int:
@@ -214,6 +232,7 @@ def _step(st, nx, c, ic, wk, h, y, u, models):
     nx[Y] = yk
     nx[RESIDUAL] = resid
     _u(nx, ic)[:] = u
+    _publish(nx, c, ic)
     return 0
 
 
@@ -233,16 +252,20 @@ def _first(nx, c, ic, wk, y, u, models):
     _k(nx, ic)[:] = g[1 + m:1 + m + dim]
     nx[RESIDUAL] = abs(yk - nx[X_HAT])
     _u(nx, ic)[:] = u
+    _publish(nx, c, ic)
     return 0
 
 
 @jit
 def _restart(st, c, ic, wk, x0, has_x0, models):
-    """Forget the run: x_hat from x0 (else 0), w = w0; gamma_hat and k at w0 (what the
-    observer reports before its first sample)."""
+    """Forget the run: x_hat from x0 (plant coordinates: T x0 with a state map; else 0),
+    w = w0; gamma_hat and k at w0 (what the observer reports before its first sample)."""
     m, dim = ic[M], ic[DIM]
-    for i in range(m):
-        st[X_HAT + i] = x0[i] if has_x0 else 0.0
+    if has_x0 and ic[MAPPED]:
+        matvec(c[T_MAP:T_MAP + m * m].reshape(m, m), x0, st[X_HAT:X_HAT + m])
+    else:
+        for i in range(m):
+            st[X_HAT + i] = x0[i] if has_x0 else 0.0
     st[W] = c[W0]
     st[HAS_YPREV] = 0.0
     st[SAT_COUNT] = 0.0
@@ -252,6 +275,7 @@ def _restart(st, c, ic, wk, x0, has_x0, models):
     st[GH] = g[0]
     st[HEALTH] = g[0]
     _k(st, ic)[:] = g[1 + m:1 + m + dim]
+    _publish(st, c, ic)
     return 0
 
 

@@ -94,12 +94,24 @@ class HighGainObserver(KernelObserver):
         wk = np.zeros(cache + kernel.scratch_size(m))
         cache_init(wk, 0, slots)
         ic = K.layout_ic(m, kernel.X_HAT, extra_ints=(
-            m, nin, int(self.on_estimate), int(self.quadratic), 0, slots, cache))
-        c = np.concatenate(([math.inf, self.M], self.gains, [-g for g in self.gains]))
+            m, nin, int(self.on_estimate), int(self.quadratic), 0, slots, cache, 0))
+        eye = np.eye(m).ravel()
+        c = np.concatenate(([math.inf, self.M], self.gains, [-g for g in self.gains], eye, eye))
         syms = self.f.syms
         model = ModelFunction(self.f.exprs, [syms[1:m], syms[:1], syms[m:]])
         self._build_kernel(c, ic, wk, kernel.state_size(m, nin), models=(model,))
         self._st[K.HEALTH] = float(self.L)
+
+    def map_states(self, T: np.ndarray) -> None:
+        """Run on z = T x and take and publish plant coordinates (plant/mapped.py): an initial
+        estimate x0 becomes T x0, the estimate is T^-1 z_hat."""
+        m = self.n_states
+        T = np.array(T, dtype=float)
+        o = kernel.t_map(m)
+        self._c[o:o + 2 * m * m] = np.concatenate((T.ravel(), np.linalg.inv(T).ravel()))
+        self._ic[kernel.MAPPED] = 1
+        self._ic[K.EST] = kernel.published(m, self.n_inputs)
+        self._restart(None)
 
     def diagnostics(self):
         return {

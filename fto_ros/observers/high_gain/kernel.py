@@ -7,10 +7,12 @@ samples linear or quadratic, the model term (its estimates clipped at +-M) a
 predictor-corrector pair.
 
 State:   header | y, has y_prev, y_prev, h_prev, saturation active, saturated steps |
-         x_hat (m) | u held over the step (n_u)
-Consts:  header | M | the gains G (m) | c = -G (m)
+         x_hat (m) | u held over the step (n_u) | the published estimate T^-1 x_hat (m; only
+         with a state map)
+Consts:  header | M | the gains G (m) | c = -G (m) | T (m x m), T^-1 (m x m): the observer
+         runs on z = T x (plant/mapped.py; identity without a map)
 Ints:    header | m, n_u, the model at the estimate (0/1), quadratic hold, cache base,
-         cache slots, scratch base
+         cache slots, scratch base, state map (0/1)
 Work:    the cache of e^(A h), then scratch: e^(A h) built (m^2), its work (2 m^2), r0, r1,
          r2, x_p, x (m each), the model's x (m), the step's work (5 m), two cells, the
          complex work (4 m floats)
@@ -24,12 +26,13 @@ import numpy as np
 
 from ...core import jit as J
 from ...core.jit import jit
+from ...core.linalg import matvec
 from ...core.reasons import CODE
 from ...core.step_cache import cache_claim, cache_find
 from ..global_norm.companion import companion_expm, companion_step, output_polynomial
 from ..kernel import C_HEADER, HEADER, IC_HEADER, RESIDUAL
 
-M_, NIN, ON_EST, QUAD, CACHE, SLOTS, SCRATCH = range(IC_HEADER, IC_HEADER + 7)
+M_, NIN, ON_EST, QUAD, CACHE, SLOTS, SCRATCH, MAPPED = range(IC_HEADER, IC_HEADER + 8)
 SAT_M = C_HEADER
 GAINS = C_HEADER + 1
 (Y, HAS_YPREV, YPREV, HPREV, SAT_ACTIVE, SAT_COUNT) = range(HEADER, HEADER + 6)
@@ -42,7 +45,27 @@ _NON_FINITE_TERM = CODE["non_finite_model_term"]
 
 
 def state_size(m: int, nin: int) -> int:
+    return X_HAT + 2 * m + nin
+
+
+def published(m: int, nin: int) -> int:
+    """Where the published estimate is with a state map."""
     return X_HAT + m + nin
+
+
+def t_map(m: int) -> int:
+    """Where T is in the constants (T^-1 follows)."""
+    return GAINS + 2 * m
+
+
+@jit
+def _publish(s, c, ic):
+    """The published estimate T^-1 x_hat (with a state map; else x_hat is published)."""
+    m = ic[M_]
+    if ic[MAPPED]:
+        o = X_HAT + m + ic[NIN]
+        t = GAINS + 2 * m + m * m
+        matvec(c[t:t + m * m].reshape(m, m), s[X_HAT:X_HAT + m], s[o:o + m])
 
 
 def scratch_size(m: int) -> int:
@@ -155,6 +178,7 @@ def _step(st, nx, c, ic, wk, h, y, u, models):
     nx[Y] = yk
     nx[RESIDUAL] = abs(yk - x[0])
     nx[X_HAT + m:X_HAT + m + ic[NIN]] = u
+    _publish(nx, c, ic)
     return 0
 
 
@@ -167,12 +191,18 @@ def kernel(op, st, nx, c, ic, wk, a, b, y, u, models):
         nx[Y] = y[0]
         nx[RESIDUAL] = abs(y[0] - nx[X_HAT])
         nx[X_HAT + m:X_HAT + m + ic[NIN]] = u
+        _publish(nx, c, ic)
         return 0
     if op == J.RESTART:
-        for i in range(m):
-            st[X_HAT + i] = y[i] if a > 0.0 else 0.0
+        if a > 0.0 and ic[MAPPED]:           # x0 in plant coordinates: T x0
+            t = GAINS + 2 * m
+            matvec(c[t:t + m * m].reshape(m, m), y, st[X_HAT:X_HAT + m])
+        else:
+            for i in range(m):
+                st[X_HAT + i] = y[i] if a > 0.0 else 0.0
         st[HAS_YPREV] = 0.0
         st[SAT_COUNT] = 0.0
+        _publish(st, c, ic)
     return 0
 
 
