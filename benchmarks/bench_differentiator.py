@@ -5,9 +5,10 @@
     and against uniform noise of amplitude eps at 1 kHz; plus the accuracy orders fitted
     on them (slope of log error vs log h, resp. log eps) next to the theory N - i and
     (N - i)/N.
-(b) cost of one update (median and p99 over the stream, best of --repeats, microseconds)
-    per scheme and order, one channel (the unrolled path) and 3 channels (the numpy
-    path), with the ratio to a numpy 3x3 matvec timed in the same run.
+(b) cost of one ``Differentiator.update`` call from Python (median and p99 over the stream,
+    best of --repeats, microseconds) per scheme and order, one channel and 3 channels (the
+    compiled step of core/differentiator_step.py; the observers' kernels call it without
+    the Python around it), with the ratio to a numpy 3x3 matvec timed in the same run.
 
     python benchmarks/bench_differentiator.py [--orders 1,2,3,4,5] [--samples N] [--repeats R]
 """

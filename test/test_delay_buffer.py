@@ -282,3 +282,50 @@ def test_mark_after_trim_and_repeated_rewinds():
         assert b.at(4.5)[0] == pytest.approx(4.5)
         assert b.at(9.0)[0] == 9.0
         b.rewind(m)
+
+
+# -- the compiled ring: fixed capacity, thinning -------------------------------------------------
+def test_a_ring_thins_a_stream_faster_than_its_capacity_to_fourth_order():
+    """A ring of fixed capacity that trims after each read at t - lag holds at most
+    dense + lag / min_gap + 2 entries however fast the stream; the thinned entries are
+    min_gap apart, so reads stay within the Hermite bound of that spacing."""
+    from fto_ros.core.delay_buffer import CURSOR, START, ring_floats, ring_push, ring_read
+    dim, dense, gap, lag, dt = 2, 100, 0.01, 1.0, 1e-4
+    cap = 2 * dense + int(lag / gap) + 8
+    wk, idx, out = np.zeros(ring_floats(cap, dim)), np.zeros(3), np.empty(dim)
+    kept = longest = 0
+    worst = 0.0
+    for i in range(40_000):                      # 4 s at 10 kHz: 10000 samples per lag
+        t = i * dt
+        kept += ring_push(wk, 0, cap, dim, idx, int(idx[START]), t,
+                          np.array([math.sin(t), math.cos(2 * t)]),
+                          np.array([math.cos(t), -2 * math.sin(2 * t)]), gap, dense)
+        if t >= lag:
+            ring_read(wk, 0, cap, dim, idx, t - lag, out)
+            worst = max(worst, float(np.max(np.abs(out - truth(t - lag)))))
+            idx[START] = idx[CURSOR]
+            longest = max(longest, int(idx[2] - idx[0]))
+    assert kept < 40_000 / 50                    # thinned: about one entry per min_gap
+    assert longest <= dense + lag / gap + 3
+    # spacing at most gap + dt: cubic Hermite |f''''| / 384 h^4 (|f''''| <= 16)
+    bound = 16 / 384 * (gap + dt) ** 4
+    assert 1e-3 * bound < worst < bound, (worst, bound)
+
+
+def test_a_ring_keeps_a_slow_stream_whole():
+    from fto_ros.core.delay_buffer import ring_floats, ring_push
+    wk, idx = np.zeros(ring_floats(64, 1)), np.zeros(3)
+    for i in range(40):                          # fewer than `dense` entries: none skipped
+        assert ring_push(wk, 0, 64, 1, idx, 0, i * 1e-6, np.ones(1), np.zeros(1), 0.5, 50)
+    assert idx[2] == 40
+
+
+def test_a_full_ring_never_overwrites_the_committed_entries():
+    from fto_ros.core.delay_buffer import ring_floats, ring_push
+    wk, idx = np.zeros(ring_floats(8, 1)), np.zeros(3)
+    for i in range(8):
+        assert ring_push(wk, 0, 8, 1, idx, 0, float(i), np.full(1, i), np.zeros(1), 0.0, 100)
+    before = wk.copy()
+    assert not ring_push(wk, 0, 8, 1, idx, 0, 8.0, np.full(1, 8.0), np.zeros(1), 0.0, 100)
+    np.testing.assert_array_equal(wk, before)
+    assert idx[2] == 8

@@ -401,6 +401,33 @@ def test_state_round_trip(channels, scheme):
     assert np.array_equal(res_first, d.residual)
 
 
+@pytest.mark.parametrize("channels", [1, 2])
+def test_a_copy_steps_on_its_own(channels):
+    """A deep copy (the fault suites copy runners) and a pickled copy publish their own
+    estimates, the original's are untouched (numpy copies a view as an independent array:
+    the estimates of a copy once stayed frozen at the time of the copy)."""
+    import copy
+    import pickle
+    d = Differentiator(2, 1.0, channels=channels)
+    d.reset(np.zeros(channels))
+    for k in range(1, 20):
+        d.update(1e-2, np.full(channels, math.sin(k * 1e-2)))
+    copies = [copy.deepcopy(d), pickle.loads(pickle.dumps(d))]
+    before = d.estimates.copy()
+    ref = Differentiator(2, 1.0, channels=channels)
+    ref.set_state(d.get_state())
+    for k in range(20, 40):
+        f = np.full(channels, math.sin(k * 1e-2))
+        for c in copies:
+            c.update(1e-2, f)
+        ref.update(1e-2, f)
+    for c in copies:
+        np.testing.assert_array_equal(c.estimates, ref.estimates)
+        np.testing.assert_array_equal(c.predicted, ref.predicted)
+    assert not np.array_equal(ref.estimates, before)
+    np.testing.assert_array_equal(d.estimates, before)
+
+
 def test_estimates_are_a_read_only_view():
     d = Differentiator(2, 1.0)
     d.reset([1.0], [[2.0, 3.0]])

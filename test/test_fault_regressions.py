@@ -7,6 +7,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -14,8 +17,12 @@ import pytest
 
 from faultkit import committed_configs, runner_for, stream_for
 from fto_ros.bag import BagReader, BagWriter
+from fto_ros.core import jit
+from fto_ros.core.errors import ConfigError
 from fto_ros.models import dc_motor
 from fto_ros.models.simulate import simulate, uniform_grid
+from fto_ros.observers import kernel as kernel_protocol
+from fto_ros.observers.single_delay import continuous as single_delay_kernel
 from fto_ros.replay import cli as replay_cli
 from fto_ros.runner import ERROR, OK, Output, Runner
 from fto_ros.runner.params_file import load_params_files
@@ -96,26 +103,27 @@ def test_sampled_single_delay_bounds_the_work_after_a_silence():
     (1 s: 0.73 s of CPU, 100 s: over 10 s, a stamp of 1e300: never)."""
     cfg = CONFIGS["dc_motor_single_delay_sampled"]
     s = stream_for(cfg)
-    steps = {"n": 0}
+    u = s.events[1][2] if s.events[1][1] == "u" else [1.0]
     for gap in (1.0, 100.0, 1e300):
         r = runner_for(cfg)
         obs = r.observer
-        for st in (obs.stepper_before, obs.stepper_after):
-            real = st.step
-
-            def counted(*a, _real=real):
-                steps["n"] += 1
-                return _real(*a)
-            st.step = counted
         for t, k, v in s.events[:400]:
             r.set_input(t, v) if k == "u" else r.process(t, v)
-        steps["n"] = 0
         t_last = s.events[399][0]
-        res = r.set_input(t_last + gap, s.events[1][2] if s.events[1][1] == "u" else [1.0])
-        # at most MAX_SUBSTEPS predictor sub-steps (2 steps each, Heun): bounded work
-        assert steps["n"] <= 2 * 1000 + 2, (gap, steps["n"])
+        s_before = obs._s
+        res = r.set_input(t_last + gap, u)
         assert res in (None, "input_bad_stamp")
         assert (res == "input_bad_stamp") == (gap > 2 ** 31)
+        assert obs._s == s_before                  # beyond what the predictor bridges
+        if gap > 2 ** 31:
+            continue
+        # the observer's own bound, without the runner's: a longer interval is not
+        # integrated, the longest it bridges takes at most MAX_SUBSTEPS sub-steps
+        obs.advance(t_last + gap, u)
+        assert obs._s == s_before
+        obs.advance(t_last + 0.9 * obs.max_step, u)
+        assert obs._s > s_before
+        assert 0 < obs.last_substeps <= 1000, obs.last_substeps
 
 
 def test_sampled_single_delay_input_hold_foh_is_used():
@@ -158,34 +166,42 @@ def test_replay_across_a_forward_jump_of_the_log_time(motor, tmp_path, capsys):
     assert m["output_topics"]["/diagnostics"] <= 6      # ~2 s of bag, not 1e6 statuses
 
 
+_SINGLE_DELAY = jit.kernel(single_delay_kernel.kernel, jit.KERNEL)
+
+
+def _failing_kernel(op, st, nx, c, ic, wk, a, b, y, u, models):
+    """The single_delay kernel with a bug: the STEP its countdown (the last float of the work
+    memory) reaches zero at commits a NaN estimate."""
+    code = _SINGLE_DELAY(op, st, nx, c, ic, wk, a, b, y, u, models)
+    if op == jit.STEP:
+        wk[wk.shape[0] - 1] -= 1.0
+        if wk[wk.shape[0] - 1] == 0.0:
+            nx[ic[kernel_protocol.EST] + 1] = math.nan
+    return code
+
+
 def test_diagnostics_error_clears_after_clean_data_and_after_reset(motor):
-    """Was: one observer_error restart kept /diagnostics at ERROR for good."""
+    """Was: one observer failure (an observer_error restart then, a non-finite estimate from
+    a compiled kernel now) kept /diagnostics at ERROR for good."""
     t, sim = motor
     r = Runner(dict(load_params_files(params_files(SD)), **{"diagnostics.window": 0.5}))
     obs = r.observer
-    real = obs.update_checked
-    boom = {"at": 300}
-
-    def flaky(tt, y, u):
-        if boom["at"] == 0:
-            boom["at"] = -1
-            raise RuntimeError("a bug in an observer")
-        boom["at"] -= 1
-        return real(tt, y, u)
-    obs.update_checked = flaky
+    obs._wk = np.append(obs._wk, 301.0)             # the bug's countdown, in the work memory
+    obs._kernels = jit.function_list([jit.kernel(_failing_kernel, jit.KERNEL)], jit.KERNELS)
+    r._bind()
     levels = []
     for k in range(len(t)):
         r.set_input(t[k], sim.u_k[k])
         r.process(t[k], sim.y[k])
         if k % 100 == 99:
             levels.append(r.status(t[k]).level)
-    assert r.resets["observer_error"] == 1
+    assert r.resets["non_finite_state"] == 1
     assert ERROR in levels[2:5]                        # the failure at 0.3 s shows ...
     assert levels[-1] == OK and levels[-5:] == [OK] * 5  # ... and clears 0.5 s later
     # a ~/reset clears it at once
-    boom["at"] = 0
+    obs._wk[-1] = 1.0
     r.set_input(t[-1] + 1e-3, sim.u_k[-1])
-    assert r.process(t[-1] + 1e-3, 2 * sim.y[-1] - sim.y[-2]) == "observer_error"
+    assert r.process(t[-1] + 1e-3, 2 * sim.y[-1] - sim.y[-2]) == "non_finite_estimate"
     assert r.status(t[-1] + 2e-3).level == ERROR
     r.reset()
     assert r.status(t[-1] + 3e-3).level != ERROR
@@ -289,3 +305,68 @@ def test_an_undecodable_message_is_one_line_naming_the_topic(motor, tmp_path, ca
     rc, err = _cli(capsys, path, *SD_ARGS, "--out", tmp_path / "o")
     assert rc == 1 and len(err) == 1, err
     assert "/dc_motor/measured_output" in err[0] and "decode" in err[0] and "unexpected" not in err[0]
+
+
+# -- parameters the design cannot use -------------------------------------------------------------
+@pytest.mark.parametrize("value", ["1.0e-300", "1.0e+300", "9223372036854775808", "1e6"])
+def test_a_design_that_fails_is_one_line_exit_2_without_warnings(motor, tmp_path, value):
+    """Was: scipy and numpy warnings on stderr, then 'unexpected LinAlgError', exit 1 (the
+    live node died of the same LinAlgError out of Runner.reconfigure).  A real process, so
+    that whatever Python would print reaches stderr."""
+    t, sim = motor
+    bag = tmp_path / "bag"
+    _write_motor_bag(bag, t[:300], sim)
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    res = subprocess.run([sys.executable, "-c", "import sys; from fto_ros.replay.cli import main; "
+                          "sys.exit(main())", str(bag), *SD_ARGS, "--set",
+                          f"single_delay.tau={value}", "--out", str(tmp_path / "o"), "--no-progress"],
+                         capture_output=True, text=True, env=env, timeout=120)
+    lines = res.stderr.strip().splitlines()
+    assert res.returncode == 2 and len(lines) == 1, res.stderr
+    assert lines[0].startswith("fto-replay: error: parameter 'single_delay."), lines[0]
+    assert "Warning" not in res.stderr and not res.stdout.strip()
+
+
+# -- sizes ----------------------------------------------------------------------------------------
+def _no_parsing(monkeypatch):
+    """Make any expression parse fail the test: a refusal must come before any work."""
+    def parse(*args, **kwargs):
+        raise AssertionError("an expression was parsed before the size check")
+    import fto_ros.core.named_model as named_model
+    import fto_ros.core.symbolic_model as symbolic_model
+    monkeypatch.setattr(named_model, "parse", parse)
+    monkeypatch.setattr(symbolic_model, "parse", parse)
+
+
+BIG = 100_000
+
+
+@pytest.mark.parametrize("what", ["constants", "states", "inputs", "outputs", "array",
+                                  "some_constants", "some_states"])
+def test_a_huge_plant_block_is_refused_before_any_work(monkeypatch, what):
+    """Was: a plant block with 100,000 constants was not refused within 40 s."""
+    flat = load_params_files(params_files(ROOT / "config" / "dc_motor_ekf.yaml"))
+    change, name = {
+        "constants": ({"plant.constants": [f"c{i}={i}" for i in range(BIG)]}, "plant.constants"),
+        "some_constants": ({"plant.constants": [f"c{i}={i}" for i in range(5000)]}, "plant.constants"),
+        "states": ({"plant.states": [f"x{i}" for i in range(BIG)], "plant.f": ["0"] * BIG},
+                   "plant.states"),
+        "some_states": ({"plant.states": [f"x{i}" for i in range(500)], "plant.f": ["0"] * 500},
+                        "plant.states"),
+        "inputs": ({"plant.inputs": [f"u{i}" for i in range(100)]}, "plant.inputs"),
+        "outputs": ({"plant.h": ["q"] * 100}, "plant.h"),
+        "array": ({"limits.measurement": [1.0] * 10 ** 6}, "limits.measurement"),
+    }[what]
+    _no_parsing(monkeypatch)
+    with pytest.raises(ConfigError) as err:
+        Runner({**flat, **change})
+    assert err.value.parameter == name and "at most" in str(err.value), err.value
+
+
+def test_a_huge_params_file_is_one_line_exit_2(tmp_path, capsys):
+    plant = tmp_path / "plant.yaml"
+    plant.write_text("/**:\n  ros__parameters:\n    plant:\n      constants: ["
+                     + ", ".join(f"'c{i}={i}'" for i in range(BIG)) + "]\n")
+    rc, err = _cli(capsys, ROOT / "bags" / "dc_motor_nominal", *SD_ARGS, "--params", plant,
+                   "--out", tmp_path / "o")
+    assert rc == 2 and len(err) == 1 and "plant.constants" in err[0] and "at most" in err[0], err

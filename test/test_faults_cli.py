@@ -16,6 +16,7 @@ import shutil
 import subprocess
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -179,6 +180,48 @@ def test_mutated_params_files_through_fto_replay(short_bag, tmp_path, capsys):
         COUNTS[f"cli_params_{family}"] += 1
         check_contract(rc, err, dt)
         assert not canary.exists(), f"text from a params file was executed ({family})"
+
+
+#: run-time parameter extremes as ROS spells them (test_faults_param_extremes.py runs them all
+#: through the runner; a seeded subset here through the command line)
+EXTREMES = ("0", "-0.0", "1.0e-300", "1e-300", "1.0e+300", "1e300", "9223372036854775808",
+            "-9223372036854775809", "5e-324", "1e400", ".nan", ".inf", "-.inf", "1e6")
+N_EXTREMES = 30
+
+
+def _number_params(files) -> list[str]:
+    """The observer's own int and double parameters of a tuning file's observer."""
+    from fto_ros.observers import observer_class
+    from fto_ros.runner.params_file import load_params_files
+    cls = observer_class(load_params_files(files)["observer.type"])
+    return [f"{cls.TYPE}.{p.name}" for p in cls.PARAMS if p.kind in ("int", "double")]
+
+
+@pytest.mark.slow
+def test_parameter_extremes_through_fto_replay(short_bag, tmp_path, capsys):
+    """--set NAME=VALUE and the same value in a params file: exit 0 or 2, one line, and no
+    warning (scipy's, numpy's) printed."""
+    rng = np.random.default_rng(2262)
+    motor = [c for c in CONFIGS if c.stem.startswith("dc_motor")]     # the short bag's topics
+    for i in range(N_EXTREMES):
+        files = params_files(motor[i % len(motor)])
+        names = _number_params(files)
+        name, text = names[int(rng.integers(len(names)))], str(rng.choice(EXTREMES))
+        if i % 2:
+            args = [a for f in files for a in ("--params", f)] + ["--set", f"{name}={text}"]
+            family = "set"
+        else:
+            section, key = name.split(".")
+            path = tmp_path / f"x{i}.yaml"
+            path.write_text(f"observer_node:\n  ros__parameters:\n    {section}:\n      {key}: {text}\n")
+            args = [a for f in files + [path] for a in ("--params", f)]
+            family = "file"
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            rc, err, dt = replay_cli_run(capsys, short_bag, *args, "--out", tmp_path / f"o{i}")
+        COUNTS[f"cli_extreme_{family}"] += 1
+        check_contract(rc, err, dt, allowed=(0, 2))
+        assert not caught, (name, text, [str(w.message) for w in caught])
 
 
 # -- bags -----------------------------------------------------------------------------------------

@@ -213,8 +213,13 @@ def test_random_operation_sequences(cfg, seed):
 BURST_AT, BURST = 0.8, 0.1
 REACQUIRE = {"cubic_escape_global_norm": 0.2, "cubic_escape_high_gain": 1.3, "dc_motor_hosm": 0.4,
              "dc_motor_luenberger": 0.3, "dc_motor_luenberger_poles": 0.7, "dc_motor_newton": 1.0,
-             "fld_example1_hosm": 3.0, "fld_example2_hosm": 3.0, "possieri_example_newton": 1.0,
-             "possieri_example_newton_ndim": 1.0, "possieri_example_newton_notch": 1.0,
+             "fld_example2_hosm": 3.0, "possieri_example_newton": 1.0,
+             "possieri_example_newton_ndim": 1.0,
+             # first measured once the burst reached them (before, the suite's deep-copied
+             # runners froze the differentiators' estimates, so these looked unharmed): the
+             # unstable Example 1 back after 3.15-3.59 s (the window's length), the notch
+             # filter's 2.5/s poles after 1.93 s; 1.5x margin as the others
+             "fld_example1_hosm": 5.4, "possieri_example_newton_notch": 3.0,
              "van_der_pol_global_norm": 0.4, "van_der_pol_high_gain": 1.4,
              # the EKF baselines (no guarantee: an EKF re-acquires at its own pace)
              "cubic_escape_ekf": 2.1, "dc_motor_ekf": 0.3, "double_integrator_ekf": 2.2,
@@ -230,15 +235,6 @@ REACQUIRE = {"cubic_escape_global_norm": 0.2, "cubic_escape_high_gain": 1.3, "dc
              # hands over tau later; junk still in its window makes the tracker inconsistent
              # again, a second re-acquisition: tau + the NIS window (measured 0.128 s)
              "dc_motor_acquire_track": 0.16}
-
-
-#: configs on which the burst measurably does no harm, so there is nothing to re-acquire
-#: (the test then only checks that nothing breaks): newton_inversion on these bags is still
-#: converging at the burst (errors of order 1: the DC motor's square-wave transients,
-#: example (22)'s slow local convergence), and fld_example1/2 carry an output disturbance
-#: the differentiator already rides
-NO_HARM = {"dc_motor_newton", "possieri_example_newton", "possieri_example_newton_ndim",
-           "possieri_example_newton_notch", "fld_example1_hosm", "fld_example2_hosm", "msd_newton"}
 
 
 def reacquisition_time(cfg, at: float, seconds: float) -> float | None:
@@ -265,7 +261,10 @@ def reacquisition_time(cfg, at: float, seconds: float) -> float | None:
     clean, junk = errs
     keys = sorted(k for k in junk if k in clean and k >= (at + BURST) * 1e6)
     harm = any(junk[k] > 2 * clean[k] + 1e-6 for k in keys[:5])
-    assert keys and harm == (cfg.name not in NO_HARM), f"harm done by the burst: {harm}"
+    # the burst does harm on every config (the check can fail; hosm and newton_inversion
+    # once looked unharmed: the fault suites' deep-copied runners had their differentiators'
+    # estimates frozen at the copy)
+    assert keys and harm, "the burst did no harm: nothing to re-acquire"
     for i, k in enumerate(keys):
         if all(junk[j] <= 2 * clean[j] + 1e-6 for j in keys[i:]):
             return k / 1e6 - (at + BURST)

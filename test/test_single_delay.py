@@ -18,7 +18,7 @@ from fto_ros.core.errors import ConfigError
 from fto_ros.models import dc_motor
 from fto_ros.models.simulate import simulate
 from fto_ros.observers.base import SampleRejected, resolve
-from fto_ros.observers.single_delay import SingleDelayObserver, design
+from fto_ros.observers.single_delay import ContinuousSingleDelay, SingleDelayObserver, design
 from fto_ros.runner import Runner, load_params_file
 
 CONFIG = "test/data/dc_motor_explicit/dc_motor_single_delay.yaml"
@@ -238,3 +238,58 @@ def test_runner_with_paper_config_reports_design_figures():
     assert float(diag["cond(S)"]) == pytest.approx(1.408e5, rel=1e-2)
     assert float(diag["tau (guaranteed convergence time, s)"]) == 0.1
     assert "noise gain |R| + int|S^-1 (e^-kr - e^-(A1'+2k)r) H| dr" in diag
+
+
+# -- the delay ring's fixed capacity ------------------------------------------------------------
+def _windowed(entries: int):
+    """The continuous form with a delay ring that keeps ``entries`` per window whole."""
+    return type(f"Window{entries}", (ContinuousSingleDelay,), {"WINDOW_ENTRIES": entries})
+
+
+def _run_checked(obs, t, y, u):
+    obs.reset(t[0])
+    est, entries = [], 0
+    for k in range(len(t)):
+        obs.update_checked(t[k], y[k], u[k])
+        est.append(obs.estimate.copy())
+        entries = max(entries, obs.delay_entries)
+    return np.array(est), entries
+
+
+def test_a_stream_faster_than_the_ring_stays_exact_to_the_interpolation_order():
+    """10 kHz, tau = 0.1 s: 1000 entries per window.  Rings that keep 64 and 128 entries
+    whole thin the stream to tau / 64 and tau / 128 apart: the estimate then differs from
+    the unthinned one (the default ring keeps 4096) by the Hermite error of the delayed
+    term, fourth order in the spacing (halving it: / 16), far below the observer's own
+    error (the hold of y: 6e-7 here), with the memory fixed."""
+    h = 1e-4
+    t = np.arange(3001) * h
+    sim = simulate(dc_motor.make_rhs(), dc_motor.DEFAULT_X0, t, dc_motor.default_voltage)
+    y, u = sim.x[:, :1].copy(), sim.u.copy()
+    late = t >= 0.101
+    ref, n_ref = _run_checked(SingleDelayObserver(dc_cfg()), t, y, u)
+    assert n_ref > 1000                                      # the whole window is kept
+    own = np.abs(ref[late] - sim.x[late]).max()
+    diffs = []
+    for entries in (64, 128):
+        est, n = _run_checked(_windowed(entries)(dc_cfg()), t, y, u)
+        assert n <= 2 * entries + 3                          # thinned: fixed memory
+        diffs.append(np.abs(est[late] - ref[late]).max())
+    assert 1e-14 < diffs[1] < diffs[0] < 1e-4 * own, (diffs, own)
+    assert 10.0 <= diffs[0] / diffs[1] <= 22.0, diffs
+
+
+def test_the_default_ring_thins_a_very_fast_stream_without_changing_the_estimate():
+    """A 10 us stream gives 10000 entries per tau = 0.1 s window: the default ring (4096
+    whole) thins it to 24 us apart; a ring that keeps everything gives the same estimate to
+    round-off."""
+    t = np.arange(15001) * 1e-5
+    y = (0.5 + 0.3 * np.sin(7 * t))[:, None]
+    u = (2.0 + np.sin(3 * t))[:, None]
+    thinned, n = _run_checked(SingleDelayObserver(dc_cfg()), t, y, u)
+    whole, n_whole = _run_checked(_windowed(16384)(dc_cfg()), t, y, u)
+    assert n <= 2 * 4096 + 3 < n_whole
+    late = t >= 0.101
+    scale = np.abs(whole[late]).max(axis=0)
+    err = (np.abs(thinned[late] - whole[late]).max(axis=0) / scale).max()
+    assert err < 1e-12, err

@@ -15,9 +15,12 @@ import os
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from fto_ros.core.errors import ConfigError
+from fto_ros.runner import Runner
+from fto_ros.runner.params_file import load_params_files
 from fto_ros.sweep import cli, engine as E, grid, results
 
 REPO = Path(__file__).resolve().parents[1]
@@ -321,3 +324,136 @@ def test_main_job_on_two_workers_prints_the_same_tables(tmp_path, capsys):
         assert _table_rows((out / "report.md").read_text()) == tables[-1]
         assert (out / "dc_motor_noisy__dc_motor_luenberger" / "replay.png").is_file()
     assert len(tables[0]) == 2 + 4 and tables[0] == tables[1]
+
+
+# -- the figures ------------------------------------------------------------------------------------
+def _figure_of(monkeypatch, draw):
+    """Run draw() and return the matplotlib figure it saved."""
+    from matplotlib.figure import Figure
+    saved = []
+    monkeypatch.setattr(Figure, "savefig", lambda self, *a, **k: saved.append(self))
+    draw()
+    assert len(saved) == 1
+    return saved[0]
+
+
+def _pareto_row(bag, setting, c, e, role=results.SWEEP, run=0):
+    return {"bag": bag, "_setting": setting, "convergence_time_s": c, "mean_rms_err": e,
+            "role": role, "run": run, "params": setting}
+
+
+def test_pareto_draws_never_converged_runs_apart_and_labels_every_point(monkeypatch, tmp_path):
+    """Was: runs that never converged drawn at 1.0 s on a 0.96-1.04 axis, one of three points
+    labelled, the legend a raw file list."""
+    from fto_ros.sweep import plots
+    never = [_pareto_row("bags/a", f"luenberger.poles=[{-20 * k}.0]", math.inf,
+                         0.00975 + 1e-5 * k, run=k) for k in range(1, 4)]
+    base = _pareto_row("bags/a", "config/dc_motor_plant.yaml,config/dc_motor_ekf.yaml", math.inf,
+                       0.0102, role=results.BASELINE, run=4)
+    mixed = [_pareto_row("bags/b", "tau=0.05", 0.05, 0.003, run=5),
+             _pareto_row("bags/b", "tau=0.1", 0.1, 0.002, run=6),
+             _pareto_row("bags/b", "tau=0.2", math.inf, 0.0021, run=7)]
+    fig = _figure_of(monkeypatch, lambda: plots.pareto(tmp_path / "p.png", never + [base] + mixed))
+    a, b = fig.axes
+    for ax, rows in ((a, never), (b, mixed)):
+        ticks = [t.get_text() for t in ax.get_xticklabels()]
+        assert "never" in ticks, ticks
+        never_x = ax.get_xticks()[ticks.index("never")]
+        lo, hi = ax.get_xlim()
+        assert lo == 0.0 and lo < never_x < hi
+        labels = {t.get_text() for t in ax.texts}
+        assert {r["_setting"] for r in rows} <= labels, labels        # every point labelled
+        legend = [t.get_text() for t in ax.get_legend().get_texts()]
+        assert not any("," in t and ".yaml" in t for t in legend), legend
+    legend = [t.get_text() for t in a.get_legend().get_texts()]
+    assert any("never below the tolerance (3)" in t for t in legend), legend
+    assert any(t.startswith("baseline dc_motor_ekf") for t in legend), legend
+    # the finite times keep their numbers on the axis; the never column is right of them
+    ticks = [t.get_text() for t in b.get_xticklabels()]
+    assert "0.1" in ticks and b.get_xticks()[ticks.index("never")] > 0.1
+
+
+def test_replay_figure_axes_name_the_units(monkeypatch, tmp_path):
+    from fto_ros.replay.plot import plot_replay
+    t = np.linspace(0, 1, 50)
+    x = np.column_stack([np.sin(t), np.cos(t), t])
+    fig = _figure_of(monkeypatch, lambda: plot_replay(
+        tmp_path / "r.png", t=t, estimate=x, state_names=["q", "q_dot", "current"],
+        truth_t=t, truth=x, err_t=t, err_norm=np.abs(t) + 1e-9, units=["rad", "rad/s", "A"],
+        ui_t=t, ui_estimate=t[:, None], ui_names=["tau_L"], ui_units=["N m"]))
+    labels = [ax.get_ylabel() for ax in fig.axes]
+    assert labels[:3] == ["q [rad]", "q_dot [rad/s]", "current [A]"], labels
+    assert labels[3].startswith("tau_L [N m]") and "mixed units" in labels[4], labels
+
+
+def test_plant_units_are_checked_and_read(tmp_path):
+    from fto_ros.plant.block import units_of
+    flat = load_params_files([REPO / "config" / "dc_motor_plant.yaml",
+                              REPO / "config" / "dc_motor_single_delay.yaml"])
+    assert units_of(flat) == (["rad", "rad/s", "A"], ["N m"], ["rad"])
+    with pytest.raises(ConfigError, match="plant.units"):
+        Runner({**flat, "plant.units": ["rad"]})
+
+
+# -- progress (a terminal) --------------------------------------------------------------------------
+def _on_a_terminal(cmd: list[str], cwd: Path, ok=(0,)) -> str:
+    """What ``cmd`` writes to stderr when stderr is a terminal (a pseudo-terminal)."""
+    import select
+    import subprocess
+    import sys
+    master, slave = os.openpty()
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    p = subprocess.Popen([sys.executable, "-c", "import sys; from fto_ros.%s import main; "
+                          "sys.exit(main())" % cmd[0], *cmd[1:]], cwd=cwd, env=env,
+                         stderr=slave, stdout=subprocess.DEVNULL, stdin=subprocess.DEVNULL)
+    os.close(slave)
+    out = b""
+    while True:
+        ready, _, _ = select.select([master], [], [], 1.0)
+        if ready:
+            try:
+                chunk = os.read(master, 65536)
+            except OSError:
+                break
+            if not chunk:
+                break
+            out += chunk
+        elif p.poll() is not None:
+            break
+    assert p.wait(timeout=300) in ok
+    return out.decode(errors="replace")
+
+
+@pytest.mark.slow
+def test_sweep_progress_bar_from_the_start_on_two_workers(tmp_path):
+    """Was: nothing for the first ~10 s (the parser imported the whole replay first)."""
+    text = _on_a_terminal(["sweep.cli", "--params", str(SINGLE_DELAY), "--bag", str(NOMINAL),
+                           "--set", "single_delay.k=150,200", "--out", str(tmp_path / "s"),
+                           "--workers", "2", "--no-plots"], REPO)
+    first = text.index("[1/2]")
+    assert "loading" in text[:first] and "0/2 runs" in text[:first], text[:first]
+    assert "2/2 runs" in text, text
+    assert "leaked" not in text
+
+
+@pytest.mark.slow
+def test_report_progress_bar_with_two_workers(tmp_path):
+    """Was: no progress at all with more than one worker (the default)."""
+    bags, config = tmp_path / "bags", tmp_path / "config"
+    bags.mkdir()
+    config.mkdir()
+    (bags / "dc_motor_nominal").symlink_to(NOMINAL)
+    for name in ("dc_motor_plant.yaml", "dc_motor_luenberger.yaml", "dc_motor_single_delay.yaml"):
+        shutil.copy(REPO / "config" / name, config / name)
+    text = _on_a_terminal(["cli.report", "--bags-dir", str(bags), "--config-dir", str(config),
+                           "--out", str(tmp_path / "o"), "--workers", "2"], REPO, ok=(0, 1))
+    # (exit 1: the config's other bags are not in this bags directory)
+    assert "0/2 replays" in text and "2/2 replays" in text, text
+    assert "leaked" not in text
+
+
+def test_sweep_help_says_the_replays_defaults():
+    from fto_ros.replay import DEFAULT_NODE_NAME, DEFAULT_TOLERANCE
+    helps = {a.dest: a.help for a in cli.build_parser()._actions}
+    assert f"default {DEFAULT_TOLERANCE:g}," in helps["tolerance"]
+    assert f"default {DEFAULT_NODE_NAME})" in helps["node_name"]

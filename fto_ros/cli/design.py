@@ -31,13 +31,17 @@ def build_parser() -> argparse.ArgumentParser:
                    help="params files: the plant file (and any shared settings) first, then "
                         "tuning files (files with observer.type), each designed on its own")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                   help="override one parameter of the plant (read as YAML, like -p NAME:=VALUE)")
+                   help="override one parameter of the plant (read as rcl reads -p NAME:=VALUE)")
     p.add_argument("--node-name", default=None, metavar="N",
                    help="node name selecting the params blocks (default observer_node)")
+    p.add_argument("--suggest-from", default=None, metavar="BAG",
+                   help="for every hosm tuning file: measure on this recording the derivative "
+                        "hosm.M bounds and suggest M (docs/hosm.md)")
     return p
 
 
-def design(paths: list[Path], overrides: dict, node_name: str | None, out) -> int:
+def design(paths: list[Path], overrides: dict, node_name: str | None, out,
+           suggest_from: Path | None = None) -> int:
     """Print the design; returns the exit code (raises ConfigError for a bad plant)."""
     from ..core.errors import ConfigError
     from ..plant import resolve_plant
@@ -85,6 +89,11 @@ def design(paths: list[Path], overrides: dict, node_name: str | None, out) -> in
             rc = 2
             continue
         print("\n".join(observer_lines(label, obs)), file=out)
+        if suggest_from is not None:
+            from .suggest import suggest_m
+            lines = suggest_m(merged, suggest_from, node_name) if type_name == "hosm" else \
+                [f"  --suggest-from: {type_name} has no M to suggest (hosm only)"]
+            print("\n".join(lines), file=out)
     return rc
 
 
@@ -93,14 +102,19 @@ def main(argv=None) -> int:
 
 
 def _main(args: argparse.Namespace) -> int:
+    from ..bag import BagError
     from ..core.errors import ConfigError
     from ..runner.params_file import parse_override
     try:
         overrides = dict(parse_override(text) for text in args.set)
-        return design([Path(p) for p in args.params], overrides, args.node_name, sys.stdout)
+        bag = Path(args.suggest_from) if args.suggest_from else None
+        return design([Path(p) for p in args.params], overrides, args.node_name, sys.stdout, bag)
     except ConfigError as err:
         print(f"{PROG}: error: {one_line(err)}", file=sys.stderr)
         return 2
+    except BagError as err:                        # --suggest-from: a bag it cannot read
+        print(f"{PROG}: error: {one_line(err)}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

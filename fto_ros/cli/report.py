@@ -291,7 +291,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config-dir", default="config", metavar="DIR",
                    help="params files directory (default: config)")
     p.add_argument("--no-progress", action="store_true",
-                   help="no progress bars (there are none with more than one worker)")
+                   help="no progress bar (replays done, rate, time left; shown on a terminal "
+                        "whatever the number of workers)")
     p.add_argument("--workers", type=positive_int, default=None, metavar="N",
                    help="replays at once, each in a worker process (default: one per core; "
                         "1 replays one after the other in this process)")
@@ -303,17 +304,20 @@ def main(argv=None) -> int:
     return guarded(PROG, _main, build_parser().parse_args(argv))
 
 
-def _said(p: Pair) -> None:
-    """The line on stderr when a pair is done."""
+def _said(p: Pair, progress=None) -> None:
+    """The line on stderr when a pair is done (above the progress bar)."""
+    from .progress import say
     if p.error:
-        print(f"{PROG}: error: {p.bag.name} with {p.config.name}: {p.error}", file=sys.stderr)
+        say(progress, f"{PROG}: error: {p.bag.name} with {p.config.name}: {p.error}")
     else:
-        print(f"{PROG}: {p.bag.name} with {p.config.name}: done "
-              f"({p.metrics['replay_speed_x_realtime']:.1f}x real time)", file=sys.stderr)
+        say(progress, f"{PROG}: {p.bag.name} with {p.config.name}: done "
+            f"({p.metrics['replay_speed_x_realtime']:.1f}x real time)")
 
 
 def _main(args) -> int:
-    from ..sweep.engine import Engine, Lost
+    from ..sweep.engine import Engine, Lost, prestart
+    from .progress import bar
+    prestart(args.workers)                   # the workers' imports start now, beside ours
     from ..sweep.tasks import Run, bag_size, execute
 
     out, bags_dir, config_dir = Path(args.out), Path(args.bags_dir), Path(args.config_dir)
@@ -341,11 +345,11 @@ def _main(args) -> int:
                        f"--out {p.bag} ...)")
             _said(p)
     todo = [p for p in pairs if p.error is None]
-    with Engine(workers=args.workers) as engine:
-        # a progress bar only when the replays run one after the other in this process
-        bars = engine.workers == 1 and not args.no_progress
+    with Engine(workers=args.workers) as engine, \
+            bar(len(todo), "replays", enabled=not args.no_progress) as progress:
+        progress.set_postfix_str(f"on {engine.description}")
         runs = [Run(i, str(p.bag), tuple(map(str, p.params)), str(p.bag),
-                    tuple(map(str, p.params)), out=str(p.out), plot=True, progress=bars)
+                    tuple(map(str, p.params)), out=str(p.out), plot=True)
                 for i, p in enumerate(todo)]
 
         def done(i: int, outcome) -> None:
@@ -353,7 +357,8 @@ def _main(args) -> int:
                 todo[i].error = outcome.message
             else:
                 todo[i].metrics, todo[i].error = outcome.metrics, outcome.error
-            _said(todo[i])
+            progress.update(1)
+            _said(todo[i], progress)
 
         engine.map(execute, [(r,) for r in runs], costs=[bag_size(p.bag) for p in todo],
                    on_done=done)

@@ -56,6 +56,9 @@ second-derivative error by 1.8-2.5 (order 2 and 3; test/test_differentiator.py).
 
 Errors: bad constructor arguments, a bad step or sample, or a step whose result
 would not be finite raise ValueError and leave the state untouched.
+
+This module designs a differentiator; its step is compiled (core/differentiator_step.py:
+every channel with the same arithmetic, the observers' kernels embed it in their state).
 """
 from __future__ import annotations
 
@@ -65,7 +68,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .discretize import StepCache
+from . import differentiator_step as S
 
 SCHEMES = ("eigenvalue_matched", "livne_levant", "euler")
 MAX_ORDER = 7
@@ -73,8 +76,6 @@ MAX_ORDER = 7
 MAX_CHAIN = 10
 #: recursive gains lambda_0..lambda_7 (Levant)
 RECURSIVE_LAMBDAS = (1.1, 1.5, 2.0, 3.0, 5.0, 7.0, 10.0, 12.0)
-#: bounded cache of per-step-size matrices
-_CACHE_SIZE = 64
 
 
 # -- gains ---------------------------------------------------------------------------------
@@ -204,69 +205,6 @@ def _positive(name: str, v) -> float:
     return x
 
 
-# -- single-channel fast path: an unrolled step generated per configuration ------------------
-def _build_scalar_step(scheme: str, NT: int, nf: int, abar: np.ndarray, K: np.ndarray | None,
-                       bbar: np.ndarray, r: float, c: np.ndarray | None, back: np.ndarray):
-    """Compile ``step(z, fp, h) -> tuple`` and ``post(z, fp, h) -> tuple`` (the current
-    estimate, see the module doc) for one channel: the same arithmetic as the numpy path,
-    unrolled with the constants inlined (the per-sample cost of a small differentiator is
-    interpreter overhead, not flops)."""
-    z = [f"z{p}" for p in range(NT)]
-    L = ["def step(z, fp, h):", f"    {', '.join(z)}{',' if NT == 1 else ''} = z"]
-    L += [f"    h{k} = h{k - 1} * h" if k > 1 else "    h1 = h" for k in range(1, NT)]
-
-    def hp(k):
-        return "1.0" if k == 0 else f"h{k}"
-    if scheme == "eigenvalue_matched":
-        L.append(f"    e = {'fp - z0' if nf == 0 else '-z0'}")
-        L.append("    a = e if e >= 0.0 else -e")
-        L.append(f"    w = -expm1(-h * {r!r} * a ** {-1.0 / NT!r}) if a > 0.0 else 1.0")
-        L += [f"    w{m} = w{m - 1} * w" if m > 1 else "    w1 = w" for m in range(1, NT + 1)]
-        L.append("    ih = 1.0 / h")
-        L += [f"    ih{k} = ih{k - 1} * ih" if k > 1 else "    ih1 = ih" for k in range(1, NT)]
-    elif scheme in ("livne_levant", "euler"):
-        L.append("    e = fp - z0")
-        L.append("    s = h if e > 0.0 else (-h if e < 0.0 else 0.0)")
-        L.append(f"    q = (e if e >= 0.0 else -e) ** {1.0 / NT!r}")
-        L.append(f"    g{NT - 1} = s")
-        L += [f"    g{i} = g{i + 1} * q" for i in range(NT - 2, -1, -1)]
-    out = []
-    for p in range(NT):
-        terms = []
-        for q in range(p, NT):
-            if scheme == "euler":
-                coef = 1.0 if q == p else (1.0 if q == p + 1 else 0.0)
-                if coef:
-                    terms.append(z[q] if q == p else f"h * {z[q]}")
-                continue
-            a_pq = float(abar[p, q])
-            if a_pq:
-                terms.append(z[q] if q == p else f"{a_pq!r} * {hp(q - p)} * {z[q]}")
-        if scheme == "eigenvalue_matched":
-            g = " + ".join(f"{float(K[p, m])!r} * w{m + 1}" for m in range(NT) if K[p, m] != 0.0)
-            if g:
-                terms.append(f"({g}) * e" + (f" * ih{p}" if p else ""))
-            if nf and p < nf and bbar[p] != 0.0:
-                terms.append(f"{float(bbar[p])!r} * {hp(nf - p)} * fp")
-        else:
-            terms.append(f"{float(c[p])!r} * g{p}")
-        out.append(f"    n{p} = " + " + ".join(terms))
-    L += out
-    L.append(f"    return ({', '.join(f'n{p}' for p in range(NT))},)")
-    # the current estimate: the prediction made with the newest sample, shifted back by h
-    L += ["", "def post(z, fp, h):", f"    {', '.join(n_ for n_ in (f'n{p}' for p in range(NT)))}"
-          f"{',' if NT == 1 else ''} = step(z, fp, h)"]
-    L += [f"    h{k} = h{k - 1} * h" if k > 1 else "    h1 = h" for k in range(1, NT)]
-    for p in range(NT):
-        terms = [f"n{p}"] + [f"{float(back[p, q])!r} * {hp(q - p)} * n{q}"
-                             for q in range(p + 1, NT) if back[p, q] != 0.0]
-        L.append(f"    b{p} = " + " + ".join(terms))
-    L.append(f"    return ({', '.join(f'b{p}' for p in range(NT))},)")
-    ns = {"expm1": math.expm1}
-    exec("\n".join(L), ns)                                  # noqa: S102 (generated above)
-    return ns["step"], ns["post"]
-
-
 # -- the differentiator ----------------------------------------------------------------------
 class Differentiator:
     """Robust exact differentiator of order n for ``channels`` signals at once.
@@ -274,7 +212,12 @@ class Differentiator:
     Estimates z_0..z_n of f, f', ..., f^(n); L bounds |f^(n+1)|.  See the module
     docstring for the schemes.  ``update(h, f)`` is causal: it advances the state over h
     with the innovation of the previous sample, stores the new sample, and publishes the
-    current estimate, which uses it (module doc)."""
+    current estimate, which uses it (module doc).
+
+    The design (gains, checks) is done here; the step is core/differentiator_step.py,
+    compiled, over the descriptor ``consts`` and a state slice.  An observer kernel keeps
+    both in its own arrays and steps them itself; ``on(state, offset)`` gives a view of
+    such an embedded differentiator (estimates, residual, snapshots)."""
 
     def __init__(self, order: int, L: float, *, channels: int = 1,
                  scheme: str = "eigenvalue_matched", rho: float = 2.0,
@@ -321,6 +264,11 @@ class Differentiator:
         n, N = self.order, self.order + 1
         self._N = NT = N + nf                  # full chain length
         self._nf = nf
+        self._abar = np.array(_scaled_chain(NT, nf), dtype=float)
+        self._K = np.zeros((NT, NT))
+        self._bbar = np.zeros(NT)
+        self._c = np.zeros(NT)
+        self._r = 0.0
         if scheme == "eigenvalue_matched":
             self._r = self.rho * self.L ** (1.0 / NT)
             self._K = (matched_gain_coefficients(NT) if nf == 0
@@ -329,67 +277,80 @@ class Differentiator:
             self._bbar = np.array([-1.0 / math.factorial(nf - p) if p < nf else 0.0
                                    for p in range(NT)])
         else:
-            # correction coefficients c_i = l~_(n-i) L^((i+1)/N), exponents (n-i)/N
+            # correction coefficients c_i = l~_(n-i) L^((i+1)/N)
             self._c = np.array([self.gains[n - i] * self.L ** ((i + 1) / N) for i in range(N)])
-            self._expo = np.array([(n - i) / N for i in range(N)])
-        self._abar = np.array(_scaled_chain(NT, nf), dtype=float)
-        if scheme != "eigenvalue_matched":
-            self._bbar = np.zeros(NT)
         # Phi(h)^-1 in scaled coordinates (entry (p, q) times h^(q-p)): unit upper
         # triangular, so the inverse is exact to round-off
         self._back = np.linalg.inv(np.eye(NT) + np.eye(NT, k=1) if scheme == "euler"
                                    else self._abar)
-        self._mats = StepCache(self._build_mats, _CACHE_SIZE, exact=True)
-        self._S = np.zeros((self.channels, NT))         # the predictor state z_k
-        self._post = np.zeros((self.channels, NT))      # the current estimate z+_k
-        self._fprev = np.zeros(self.channels)
-        self._view = self._post[:, nf:]
-        self._view.flags.writeable = False
-        self._pred_view = self._S[:, nf:]
-        self._pred_view.flags.writeable = False
+        head = [NT, nf, SCHEMES.index(scheme), self._r, max_step or 0.0, self.channels]
+        #: the descriptor the compiled step reads (core/differentiator_step.py)
+        self.consts = np.concatenate((head, self._abar.ravel(), self._K.ravel(), self._bbar,
+                                      self._c, self._back.ravel()))
+        #: floats of state and of scratch memory the step needs
+        self.state_size = S.state_size(NT, self.channels)
+        self.scratch_size = S.SCRATCH_PER_NT * NT
+        self._wk = np.zeros(self.scratch_size)
+        self._nx = np.zeros(self.state_size)
+        self._f = np.zeros(self.channels)
         self._ready = False
-        self._step1 = self._post1 = None
-        self._z1 = None
-        if self.channels == 1:                  # the unrolled single-channel step
-            self._step1, self._post1 = _build_scalar_step(
-                scheme, NT, nf, self._abar, self._K if scheme == "eigenvalue_matched" else None,
-                self._bbar, getattr(self, "_r", 0.0), getattr(self, "_c", None), self._back)
+        self._bind(np.zeros(self.state_size), 0)
+
+    def _bind(self, st: np.ndarray, offset: int) -> None:
+        self._st, self._so = st, int(offset)
+        NT = self._N
+        rows = st[self._so:self._so + self.state_size].reshape(self.channels, 2 * NT + 1)
+        self._rows = rows
+        self._view = rows[:, NT + self._nf:2 * NT]
+        self._view.flags.writeable = False
+        self._pred_view = rows[:, self._nf:NT]
+        self._pred_view.flags.writeable = False
+
+    # a copy (deepcopy, pickle) views its own copy of the state: numpy copies a view as an
+    # independent array, which would leave the estimates frozen at the time of the copy
+    _VIEWS = ("_rows", "_view", "_pred_view")
+
+    def __getstate__(self):
+        return {k: v for k, v in self.__dict__.items() if k not in self._VIEWS}
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._bind(self._st, self._so)
+
+    def on(self, st: np.ndarray, offset: int) -> "Differentiator":
+        """This differentiator with its state at ``st[offset:offset + state_size]`` (an
+        observer's state, which its kernel steps): a view that reads and writes there."""
+        view = object.__new__(type(self))
+        view.__dict__.update(self.__dict__)
+        view._ready = True
+        view._bind(st, offset)
+        return view
 
     # -- state ---------------------------------------------------------------------------
     def reset(self, f0, derivatives=None) -> None:
         """Start at the first sample f0 (channels,), derivatives (channels, n) initial guesses
         of f'..f^(n) (zeros if None); filter states at zero."""
         f0 = self._sample(f0)
-        S = np.zeros_like(self._S)
-        S[:, self._nf] = f0
+        d = np.zeros(0)
         if derivatives is not None:
             d = np.asarray(derivatives, dtype=float)
             if d.size != self.channels * self.order:
                 raise ValueError(f"derivatives: need shape ({self.channels}, {self.order}), "
                                  f"got {d.shape}")
-            d = d.reshape(self.channels, self.order)
+            d = np.ascontiguousarray(d, dtype=float).reshape(-1)
             if not np.all(np.isfinite(d)):
                 raise ValueError("derivatives: must be finite")
-            S[:, self._nf + 1:] = d
-        self._S[...] = S
-        self._post[...] = S                       # no step yet: nothing to add
-        self._fprev[:] = f0
+        S.reset(self.consts, 0, self._st, self._so, f0, d, derivatives is not None)
         self._ready = True
-        self._z1 = tuple(S[0].tolist())
-        self._fp1 = float(f0[0])
 
     def get_state(self):
         """Opaque snapshot (a copy) for set_state."""
-        return (self._S.copy(), self._post.copy(), self._fprev.copy(), self._ready)
+        return (self._st[self._so:self._so + self.state_size].copy(), self._ready)
 
     def set_state(self, state) -> None:
-        S, post, fprev, ready = state
-        self._S[...] = S
-        self._post[...] = post
-        self._fprev[:] = fprev
+        values, ready = state
+        self._st[self._so:self._so + self.state_size] = values
         self._ready = ready
-        self._z1 = tuple(self._S[0].tolist())
-        self._fp1 = float(self._fprev[0])
 
     @property
     def estimates(self) -> np.ndarray:
@@ -405,7 +366,7 @@ class Differentiator:
     @property
     def residual(self) -> np.ndarray:
         """|f - z0| per channel at the last sample: the innovation of the recursion."""
-        return np.abs(self._fprev - self._S[:, self._nf])
+        return np.abs(self._rows[:, 2 * self._N] - self._rows[:, self._nf])
 
     # -- stepping ------------------------------------------------------------------------
     def _sample(self, f) -> np.ndarray:
@@ -414,74 +375,30 @@ class Differentiator:
             raise ValueError(f"f: need {self.channels} value(s), got {a.size}")
         if not np.all(np.isfinite(a)):
             raise ValueError(f"f: must be finite, got {a}")
-        return a
+        return np.ascontiguousarray(a)
 
     def update(self, h: float, f) -> np.ndarray:
         """Advance by h > 0 with the previous sample's innovation, then take the sample f.
         Returns the current estimates at the new sample time, which use f (read-only view,
         shape (channels, n+1); module doc)."""
-        step1 = self._step1
-        if step1 is not None and self._ready:     # channels == 1: pure-Python fast path
-            if type(f) is float:
-                fv = f
-            elif type(f) is np.ndarray and f.shape == (1,):
-                fv = float(f[0])
-            else:
-                fv = float(self._sample(f)[0])
-            if not (h > 0.0 and h < math.inf) or fv - fv != 0.0:
-                self._sample(f)
-                raise ValueError(f"h: the step must be finite and > 0, got {h!r}")
-            z = self._z1
-            fp = self._fp1
-            hs = h
-            if self.max_step is not None and h > self.max_step:
-                m = math.ceil(h / self.max_step - 1e-9)
-                hs = h / m
-                for _ in range(m):
-                    z = step1(z, fp, hs)
-            else:
-                z = step1(z, fp, h)
-            zp = self._post1(z, fv, hs)
-            t = sum(z) + sum(zp)
-            if t - t != 0.0:
-                raise ValueError(f"h: the step {h!r} gives a non-finite estimate; "
-                                 "state unchanged")
-            self._z1 = z
-            self._fp1 = fv
-            self._S[0] = z
-            self._post[0] = zp
-            self._fprev[0] = fv
-            return self._view
         if not self._ready:
             raise RuntimeError("Differentiator.update before reset()")
+        if type(f) is float and self.channels == 1 and f - f == 0.0:
+            fa = self._f
+            fa[0] = f
+        else:
+            fa = self._sample(f)
         if not (h > 0 and h < math.inf):           # also rejects NaN
             raise ValueError(f"h: the step must be finite and > 0, got {h!r}")
-        fa = self._sample(f)
-        h = float(h)
-        S = self._S
-        hs = h
-        if self.max_step is not None and h > self.max_step:
-            m = math.ceil(h / self.max_step - 1e-9)
-            hs = h / m
-            for _ in range(m):
-                S = self._step(S, hs, self._fprev)
-        else:
-            S = self._step(S, h, self._fprev)
-        post = self._step(S, hs, fa) @ self._back_mat(hs)
-        if not (np.all(np.isfinite(S)) and np.all(np.isfinite(post))):
+        nx = self._nx
+        if S.update(self.consts, 0, self._st, self._so, nx, 0, float(h), fa, self._wk, 0):
             raise ValueError(f"h: the step {h!r} gives a non-finite estimate; state unchanged")
-        self._S[...] = S
-        self._post[...] = post
-        self._fprev[:] = fa
+        self._st[self._so:self._so + self.state_size] = nx
         return self._view
 
-    def _back_mat(self, h: float) -> np.ndarray:
-        """Phi(h)^-T, for rows: ``S @ _back_mat(h)`` shifts each row back by h."""
-        d = np.subtract.outer(np.arange(self._N), np.arange(self._N)).T   # q - p
-        with np.errstate(over="ignore"):
-            return (self._back * np.where(d >= 0, float(h) ** np.maximum(d, 0), 0.0)).T
-
-    def _build_mats(self, h: float):
+    def _mats(self, h: float):
+        """(A(h)^T, h^-p, the filter input vector) of the recursion at step h in unscaled
+        coordinates: the matrices the design is checked with (test/test_differentiator.py)."""
         NT = self._N
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             hp = h ** np.arange(NT, dtype=float)
@@ -492,22 +409,3 @@ class Differentiator:
                 A = (self._abar * hp[None, :]) * hinv[:, None]
             bvec = (self._bbar * h ** self._nf) * hinv
         return np.ascontiguousarray(A.T), hinv, bvec
-
-    def _step(self, S: np.ndarray, h: float, fp: np.ndarray) -> np.ndarray:
-        """One step of the recursion over h with the sample fp (channels,)."""
-        AT, hinv, bvec = self._mats(h)
-        nf = self._nf
-        with np.errstate(over="ignore", invalid="ignore"):
-            if self.scheme == "eigenvalue_matched":
-                e = (fp - S[:, 0]) if nf == 0 else -S[:, 0]
-                a = np.maximum(np.abs(e), 1e-300)
-                w = -np.expm1(-(h * self._r) * a ** (-1.0 / self._N))
-                W = w[:, None] ** np.arange(1, self._N + 1)
-                lam = (W @ self._K.T) * hinv
-                out = S @ AT + lam * e[:, None]
-                if nf:
-                    out += fp[:, None] * bvec
-                return out
-            e = fp - S[:, 0]
-            corr = (h * self._c) * np.abs(e)[:, None] ** self._expo * np.sign(e)[:, None]
-            return S @ AT + corr

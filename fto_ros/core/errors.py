@@ -33,3 +33,10 @@ class ConfigError(ValueError):
         super().__init__(f"parameter '{parameter}': {problem}")
         self.parameter = parameter
         self.problem = problem
+
+
+class ConfigNote(UserWarning):
+    """A note to the user about a configuration that is accepted (e.g. a term counted
+    twice, a paper's condition that fails but is not required): warned at start-up.  The
+    runner passes these on and drops every other warning raised while an observer is
+    designed (numerical ones, which the design handles)."""

@@ -144,9 +144,12 @@ if ENABLED:
     #: kernel(op, state, new, consts, iconsts, work, a, b, y, u, models): see observers/kernel.py
     KERNEL = _t.int64(_t.int64, A, A, A, I, A, _t.float64, _t.float64, A, A, MODELS)
     KERNELS = _t.ListType(_t.FunctionType(KERNEL))
+    #: every joint's model terms (joints share a kernel; their constants, so their model
+    #: terms, may differ)
+    MODELS_BY_JOINT = _t.ListType(MODELS)
     _MODEL_FT, _KERNEL_FT = MODELS.item_type, KERNELS.item_type
 else:
-    A = I = MODEL = MODELS = KERNEL = KERNELS = None
+    A = I = MODEL = MODELS = KERNEL = KERNELS = MODELS_BY_JOINT = None
 
 
 #: model slots every kernel gets (unused ones hold the none model)
@@ -171,6 +174,27 @@ def _kernels_list(k0):
 _makers = {}
 
 
+def _by_joint(lists):
+    """A typed list of the joints' model lists (built in Python: the list of lists cannot be
+    a compiled function's argument tuple of variable length)."""
+    maker = _makers.get("by_joint")
+    if maker is None:
+        maker = _makers["by_joint"] = _njit(_append_models, _t.void(MODELS_BY_JOINT, MODELS))
+        _makers["by_joint_new"] = _njit(_new_by_joint, MODELS_BY_JOINT())
+    out = _makers["by_joint_new"]()
+    for m in lists:
+        maker(out, m)
+    return out
+
+
+def _new_by_joint():
+    return _List.empty_list(MODELS)
+
+
+def _append_models(out, m):
+    out.append(m)
+
+
 def function_list(fns, kind):
     """The functions ``fns`` as what compiled code takes: a typed list of function pointers
     (``kind``: MODELS, exactly MODEL_SLOTS of them, or KERNELS, one), passed from Python at the
@@ -184,6 +208,8 @@ def function_list(fns, kind):
         item = kind.item_type
         if kind is MODELS:
             maker = _njit(_models_list, kind(item, item, item, item))
+        elif kind is MODELS_BY_JOINT:
+            return _by_joint(fns)
         else:
             maker = _njit(_kernels_list, kind(item))
         _makers[id(kind)] = maker
@@ -196,6 +222,11 @@ class _Compiled:
     def __init__(self):
         self.names: list[str] = []
         self.seconds = 0.0
+
+    def note(self, name: str, seconds: float) -> None:
+        if ENABLED:
+            self.names.append(name)
+            self.seconds += seconds
 
 
 COMPILED = _Compiled()

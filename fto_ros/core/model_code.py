@@ -138,10 +138,11 @@ class ModelFunction:
         self._kernel = None
 
     def pure(self, x, y, u, out) -> int:
-        """The numpy path's call: as the compiled one, math's exceptions -> 1 (non-finite)."""
+        """The numpy path's call: as the compiled one, math's exceptions -> 1 (non-finite;
+        TypeError: a complex power of a negative base)."""
         try:
             return self._py(x, y, u, out)
-        except (ValueError, OverflowError, ZeroDivisionError):
+        except (ValueError, OverflowError, ZeroDivisionError, TypeError):
             out[:self.size] = math.nan
             return 1
 

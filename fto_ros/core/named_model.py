@@ -15,7 +15,7 @@ import sympy
 
 from .errors import ConfigError
 from .expressions import parse
-from .symbolic_model import check_names, parse_constants
+from .symbolic_model import MAX_NAMES, check_names, parse_constants
 
 
 @dataclass
@@ -73,11 +73,13 @@ def parse_model(states: Sequence[str] | None, inputs: Sequence[str] | None,
     check_names(states, P + "states", taken)
     check_names(inputs, P + "inputs", taken)
     check_names(unknown, P + "unknown_inputs", taken)
-    consts = parse_constants(list(constants or []), P + "constants", taken)
     n = len(states)
     if len(f) != n:
         raise ConfigError(P + "f", f"expected {n} expression(s), one per state "
                           f"({', '.join(states)}), got {len(f)}")
+    if len(h) > MAX_NAMES:
+        raise ConfigError(P + "h", f"{len(h)} outputs: at most {MAX_NAMES}")
+    consts = parse_constants(list(constants or []), P + "constants", taken)
     x = [sympy.Symbol(s, real=True) for s in states]
     u = [sympy.Symbol(s, real=True) for s in inputs]
     d = [sympy.Symbol(s, real=True) for s in unknown]

@@ -31,6 +31,7 @@ REJECTIONS = (
     "zero_stamp", "future_stamp", "waiting_for_clock", "disabled",
     "joint_states_joint_missing", "joint_states_position_missing",
     "joint_states_velocity_missing", "joint_states_effort_missing",
+    "joint_states_duplicate_joint",
 )
 CODE = {name: i for i, name in enumerate(REJECTIONS)}
 

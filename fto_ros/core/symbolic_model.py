@@ -13,11 +13,10 @@ u_e = (u, u', ..., u^(n))::
     O_(n-1)(x, u_e) = [D^0 h, ..., D^(n-1) h]
 
 Derived once with sympy: O, its Jacobian J = dO/dx and the input feed-forward
-G = dO/du_e . u_e^(1,n) (the term the observer (11g) subtracts), then compiled
-to one plain-Python function (``lambdify(modules='math', cse=True)``, a few
-microseconds per call for n <= 3: faster than numpy for such small vectors) that
-returns (O, J row-major, G) at a point.  A numpy version of J is compiled for the
-start-up check over a box.
+G = dO/du_e . u_e^(1,n) (the term the observer (11g) subtracts), then generated as one
+model function (core/model_code.py: ``fn(x, y, u, out)`` with u the input-derivative
+vector, compiled for the observer's kernel) that writes (O, J row-major, G) at a point.
+A numpy version of J is compiled for the start-up check over a box.
 
 Constants: ``constants: ["a1=35.0", "b1=1/L"]`` -- ``name=expression`` in numbers and
 the constants defined before it; they are substituted as numbers before the
@@ -35,14 +34,23 @@ import numpy as np
 import sympy
 
 from .errors import ConfigError
-from .expressions import FUNCTIONS, compile_exprs, parse
+from .expressions import FUNCTIONS, parse
+from .model_code import ModelFunction
 
 _NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 #: names a user may not take (sympy's parser needs them, or they are functions/constants)
 _RESERVED = set(FUNCTIONS) | {"pi", "E", "Integer", "Float", "Rational", "Symbol", "t"}
 
 
+#: most names in one list (states, inputs, unknown inputs) and most constants: the largest
+#: observer takes 64 states; checked before anything is parsed
+MAX_NAMES = 64
+MAX_CONSTANTS = 256
+
+
 def check_names(names: Sequence[str], parameter: str, taken: set[str]) -> None:
+    if len(names) > MAX_NAMES:
+        raise ConfigError(parameter, f"{len(names)} names: at most {MAX_NAMES}")
     for name in names:
         if not isinstance(name, str) or not _NAME.match(name) or keyword.iskeyword(name):
             raise ConfigError(parameter, f"{name!r} is not a valid name (letters, digits and _ "
@@ -58,6 +66,8 @@ def check_names(names: Sequence[str], parameter: str, taken: set[str]) -> None:
 
 def parse_constants(texts: Sequence[str], parameter: str, taken: set[str]) -> dict[str, float]:
     """``["a1=35", "b=2*a1"]`` -> {"a1": 35.0, "b": 70.0}; each may use the earlier ones."""
+    if len(texts) > MAX_CONSTANTS:
+        raise ConfigError(parameter, f"{len(texts)} constants: at most {MAX_CONSTANTS}")
     values: dict[str, float] = {}
     syms: dict[str, sympy.Symbol] = {}
     for i, text in enumerate(texts):
@@ -67,7 +77,7 @@ def parse_constants(texts: Sequence[str], parameter: str, taken: set[str]) -> di
         name, expr_text = (s.strip() for s in text.split("="))
         check_names([name], where, taken)
         expr = parse(expr_text, list(syms.values()), where)
-        val = expr.xreplace({syms[k]: sympy.Float(v) for k, v in values.items()})
+        val = expr.xreplace({s: sympy.Float(values[s.name]) for s in expr.free_symbols})
         try:
             num = float(val)
         except (TypeError, ValueError):
@@ -149,27 +159,26 @@ class SymbolicModel:
                                   f"(expression {i} is {e})")
 
         # -- compilation ------------------------------------------------------------------
-        flat = tuple(self.O) + tuple(x for r in self.J for x in r) + tuple(self.G)
-        self._all = compile_exprs(flat, (self.x, self.ue))
-        self._obs = compile_exprs(self.O, (self.x, self.ue))
+        flat = list(self.O) + [x for r in self.J for x in r] + list(self.G)
+        #: [O, J row-major, G](x, u_e) as a model function (its ``u`` is u_e)
+        self.function = ModelFunction(flat, [self.x, [], self.ue])
+        self._out = np.zeros(len(flat))
         self._jac_np = sympy.lambdify((self.x, self.ue), [x for r in self.J for x in r],
                                       modules="numpy", cse=True)
 
     # -- numeric evaluation -------------------------------------------------------------------
     def evaluate(self, x, ue) -> tuple | None:
         """(O, J row-major, G) as one flat tuple of floats (length n + n^2 + n), or None
-        where the expressions are not defined (log of a negative, division by zero...)."""
-        try:
-            return self._all(x, ue)
-        except (ValueError, OverflowError, ZeroDivisionError, TypeError):
+        where the expressions are not defined or not finite (log of a negative, division
+        by zero...)."""
+        if self.function.pure(x, (), ue, self._out) != 0:
             return None
+        return tuple(self._out.tolist())
 
     def observation(self, x, ue) -> tuple | None:
         """O_(n-1)(x, u_e) as a tuple, or None where undefined."""
-        try:
-            return self._obs(x, ue)
-        except (ValueError, OverflowError, ZeroDivisionError, TypeError):
-            return None
+        out = self.evaluate(x, ue)
+        return None if out is None else out[:self.n]
 
     def jacobian(self, x, ue) -> np.ndarray:
         """J at one point, (n, n) array (NaN where undefined)."""

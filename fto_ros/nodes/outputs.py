@@ -71,7 +71,7 @@ class Outputs:
         self.conv = pub(Float64MultiArray, "~/convergence")
         self.conv_msg = labelled_array(convergence_fields(obs))
         self.ui = self.ui_stamped = None
-        if type(obs).unknown_input is not Observer.unknown_input:  # the class identifies one
+        if obs.has_unknown_input:
             names = list(getattr(obs, "unknown_input_names", None) or
                          [f"zeta{j}" for j in range(obs.n_outputs)])
             self.ui = pub(Float64MultiArray, "~/unknown_input_estimate")

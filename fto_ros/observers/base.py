@@ -21,6 +21,9 @@ from ..core.reasons import REJECTIONS
 
 #: parameter kinds, mapped one to one onto ROS 2 parameter types
 KINDS = ("bool", "int", "double", "string", "double_array", "int_array", "string_array")
+#: most elements of an array parameter (the largest matrix an observer takes, 64 x 64, has
+#: 4096): a longer one is refused before its elements are looked at
+MAX_ARRAY = 10_000
 
 
 def check_vector(v, n: int, what: str) -> str | None:
@@ -39,6 +42,12 @@ def check_vector(v, n: int, what: str) -> str | None:
     except TypeError:
         return f"{what}_not_numeric"
     return None
+
+
+def check_size(name: str, value: Any) -> None:
+    """ConfigError for a list longer than :data:`MAX_ARRAY` (looks at its length only)."""
+    if isinstance(value, (list, tuple, np.ndarray)) and len(value) > MAX_ARRAY:
+        raise ConfigError(name, f"a list of {len(value)} elements: at most {MAX_ARRAY}")
 
 
 class SampleRejected(Exception):
@@ -132,9 +141,14 @@ class Param:
                 return value
             if isinstance(value, (str, bytes)) or not isinstance(value, (Sequence, np.ndarray)):
                 raise ConfigError(name, f"expected a list, got {short(value)}")
+            check_size(name, value)
             if kind == "string_array":
                 if not all(isinstance(v, str) for v in value):
                     raise ConfigError(name, f"expected a list of strings, got {short(value)}")
+                bad = [v for v in value if self.choices and v not in self.choices]
+                if bad:
+                    raise ConfigError(name, f"each must be one of {', '.join(self.choices)}; "
+                                      f"got {short(bad[0])}")
                 return [str(v) for v in value]
             if kind == "int_array":
                 if not all(not isinstance(v, (bool, str)) and float(v).is_integer() for v in value):
@@ -326,6 +340,11 @@ class Observer(abc.ABC):
         return None
 
     @property
+    def has_unknown_input(self) -> bool:
+        """Whether this observer identifies an unknown input (publishes its estimate)."""
+        return type(self).unknown_input is not Observer.unknown_input
+
+    @property
     def guaranteed_time(self) -> float:
         """Time after reset from which the estimate is guaranteed (inf: none, the default)."""
         return math.inf
@@ -463,6 +482,10 @@ class KernelObserver(Observer):
         return self._st[o:o + n]
 
     @property
+    def has_unknown_input(self) -> bool:
+        return bool(self._ic[self._K.N_UI])
+
+    @property
     def unknown_input(self):
         n = self._ic[self._K.N_UI]
         if n == 0:
@@ -490,6 +513,11 @@ class KernelObserver(Observer):
     def convergence_extra(self) -> tuple[float, ...]:
         o, n = self._ic[self._K.EXTRA], self._ic[self._K.N_EXTRA]
         return tuple(self._st[o:o + n].tolist())
+
+    def adopt(self, st, nx, c, ic, wk, clk) -> None:
+        """Use these arrays (rows of the runner's arrays of every joint) as the observer's
+        memory from now on; they hold the same values as its own."""
+        self._st, self._nx, self._c, self._ic, self._wk, self._clk = st, nx, c, ic, wk, clk
 
     def program(self):
         """What the runner's block loop takes: (kernels, models, state, candidate, consts,

@@ -132,14 +132,9 @@ def _advance(kernels, models, st, nx, c, ic, wk, clk, t, u, y_empty):
     return code
 
 
-if J.ENABLED:
-    from numba import types as _t
-    _ARGS = (J.KERNELS, J.MODELS, J.A, J.A, J.A, J.I, J.A, J.A)
-    restart = J.kernel(_restart, _t.int64(*_ARGS, J.A, _t.boolean))
-    update = J.kernel(_update, _t.int64(*_ARGS, _t.float64, J.A, J.A))
-    advance = J.kernel(_advance, _t.int64(*_ARGS, _t.float64, J.A, J.A))
-else:
-    restart, update, advance = _restart, _update, _advance
+# compiled at their first call, for the kernel and model lists they get (typed lists of
+# function pointers: one compilation serves every family, and is cached on disk)
+restart, update, advance = jit(_restart), jit(_update), jit(_advance)
 
 
 def layout_ic(n_states: int, est: int, n_ui: int = 0, ui: int = 0, n_extra: int = 0,

@@ -56,6 +56,8 @@ MODE_NAMES = {ACQUIRING: "acquiring", TRACKING: "tracking", REACQUIRING: "re-acq
 #: samples of measurement noise the acquirer's noise covariance is measured on (after its
 #: guaranteed time, or after as many samples for an acquirer without one)
 NOISE_SAMPLES = 2000
+#: at most this many samples are run before NOISE_SAMPLES are measured (bounded start-up)
+MAX_NOISE_SKIP = 20_000
 NOISE_SEED = 20261201
 
 
@@ -142,7 +144,12 @@ class TrackObserver(Observer):
         acq = self._make_acquirer()
         h = self.sample_period
         gt = acq.guaranteed_time
-        skip = int(math.ceil(gt / h)) + 1 if math.isfinite(gt) else NOISE_SAMPLES
+        skip = math.ceil(gt / h) + 1 if math.isfinite(gt) else NOISE_SAMPLES
+        if skip > MAX_NOISE_SKIP:
+            raise ConfigError(P + "sample_period", f"measuring the acquirer's noise covariance runs "
+                              f"it past its guaranteed time ({gt:.4g} s): {skip:.3g} samples of "
+                              f"{h:g} s, more than {MAX_NOISE_SKIP}; give {P}initial_covariance, a "
+                              "longer sample period or a shorter guaranteed time")
         rng = np.random.default_rng(NOISE_SEED)
         u = np.zeros(self.n_inputs)
         xs = []

@@ -43,6 +43,11 @@ PLANT_PARAMS: tuple[Param, ...] = (
     Param("f", "string_array", None, "x' = f(x, u, d): one expression per state in the state, "
           "input, unknown-input and constant names (sin, cos, exp, sqrt, ... allowed)"),
     Param("h", "string_array", None, "y = h(x, u): one expression per measured output"),
+    Param("units", "string_array", [], "unit of each state, e.g. [rad, rad/s, A] (empty: "
+          "none); the replay figure labels its axes with them and fto-design says hosm's M "
+          "in them (an output that is a state has that state's unit)"),
+    Param("unknown_input_units", "string_array", [], "unit of each unknown input, e.g. [N m] "
+          "(empty: none)"),
 )
 
 
@@ -75,6 +80,11 @@ def parse_plant(values: Mapping[str, Any]) -> Plant:
     plant = Plant(**vars(model))
     plant.constant_texts = list(values.get("constants") or [])
     plant.f_texts, plant.h_texts = list(values["f"]), list(values["h"])
+    for key, names in (("units", plant.states), ("unknown_input_units", plant.unknown_inputs)):
+        given_units = values.get(key) or []
+        if given_units and len(given_units) != len(names):
+            raise ConfigError(PREFIX + key, f"expected one unit per name ({len(names)}: "
+                              f"{', '.join(names) or 'none'}), got {len(given_units)}")
     check_observable(plant)
     return plant
 
@@ -83,6 +93,25 @@ def resolve_plant(flat: Mapping[str, Any]) -> Plant:
     """The plant of the flat parameters (``plant.*`` keys), typed and parsed."""
     values = {k[len(PREFIX):]: v for k, v in flat.items() if k.startswith(PREFIX)}
     return parse_plant(resolve(PLANT_PARAMS, values, prefix=PREFIX))
+
+
+def units_of(flat: Mapping[str, Any]) -> tuple[list[str], list[str], list[str]]:
+    """(state units, unknown-input units, output units) of the flat parameters' plant
+    block, '' where none is given: an output whose h is a state has that state's unit.
+    Empty lists without units.  Read as given (the runner validates the block)."""
+    states = list(flat.get(PREFIX + "states") or [])
+    units = [str(u) for u in flat.get(PREFIX + "units") or []]
+    ui_units = [str(u) for u in flat.get(PREFIX + "unknown_input_units") or []]
+    if len(units) != len(states):
+        return [], ui_units, []
+    by_state = dict(zip(states, units))
+    outputs = [by_state.get(str(h).strip(), "") for h in flat.get(PREFIX + "h") or []]
+    return units, ui_units, outputs
+
+
+def labelled(name: str, unit: str) -> str:
+    """'q [rad]', or the name alone without a unit."""
+    return f"{name} [{unit}]" if unit else name
 
 
 class _Printer(StrPrinter):

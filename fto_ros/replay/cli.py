@@ -34,8 +34,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "earlier ones (a plant file, then a tuning file), as ROS 2 merges "
                         "several --params-file")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                   help="override one parameter after the files (the value is read as YAML, as "
-                        "ROS reads -p NAME:=VALUE), e.g. --set single_delay.tau=0.05")
+                   help="override one parameter after the files (the value is read as ROS reads "
+                        "-p NAME:=VALUE), e.g. --set single_delay.tau=0.05")
     p.add_argument("--out", required=True, metavar="OUT", help="output bag directory")
     p.add_argument("--node-name", default=None, metavar="N",
                    help=f"node name: selects the params block and the output namespace "

@@ -11,6 +11,8 @@ from typing import Sequence
 
 import numpy as np
 
+from ..plant.block import labelled
+
 #: at most this many points per line (evenly decimated; the plot is for reading, not data)
 MAX_POINTS = 20000
 
@@ -23,6 +25,10 @@ def _decimate(*arrays: np.ndarray) -> tuple[np.ndarray, ...]:
     return tuple(a[::step] for a in arrays)
 
 
+def _label(name: str, units: Sequence[str], i: int) -> str:
+    return labelled(name, units[i] if i < len(units) else "")
+
+
 def plot_replay(path: str | Path, *, t: np.ndarray, estimate: np.ndarray,
                 state_names: Sequence[str], truth_t: np.ndarray | None = None,
                 truth: np.ndarray | None = None, err_t: np.ndarray | None = None,
@@ -31,7 +37,8 @@ def plot_replay(path: str | Path, *, t: np.ndarray, estimate: np.ndarray,
                 t_start: float = 0.0, title: str = "",
                 ui_t: np.ndarray | None = None, ui_estimate: np.ndarray | None = None,
                 ui_truth_t: np.ndarray | None = None, ui_truth: np.ndarray | None = None,
-                ui_names: Sequence[str] = ()) -> Path:
+                ui_names: Sequence[str] = (), units: Sequence[str] = (),
+                ui_units: Sequence[str] = ()) -> Path:
     """Write the replay figure to ``path`` (PNG) and return the path.
 
     Times are seconds since the start of the bag.  ``t``/``estimate``: the
@@ -41,6 +48,8 @@ def plot_replay(path: str | Path, *, t: np.ndarray, estimate: np.ndarray,
     panel per component, drawn like the states.
     ``guaranteed_time`` (seconds after ``t_start``, the observer's first
     sample) is marked by a labelled vertical line; inf means no guarantee.
+    ``units``, ``ui_units``: the unit of each state and unknown input ('' or missing: none),
+    in the axis labels (the plant block's ``plant.units``).
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -94,7 +103,7 @@ def plot_replay(path: str | Path, *, t: np.ndarray, estimate: np.ndarray,
             ax.text(0.99, 0.04, "estimate clipped (transient off scale)", transform=ax.transAxes,
                     fontsize=7, ha="right", va="bottom", color="tab:blue")
         mark(ax, label=(i == 0))
-        ax.set_ylabel(name)
+        ax.set_ylabel(_label(name, units, i))
         ax.grid(True, alpha=0.3)
         if i == 0:  # one legend for the state panels, above them: it hides no curve
             handles, labels = ax.get_legend_handles_labels()
@@ -125,7 +134,7 @@ def plot_replay(path: str | Path, *, t: np.ndarray, estimate: np.ndarray,
                         transform=ax.transAxes, fontsize=7, ha="right", va="bottom",
                         color="tab:orange")
             mark(ax, label=False)
-            ax.set_ylabel(f"{name} (unknown input)", fontsize=8)
+            ax.set_ylabel(f"{_label(name, ui_units, j)}\n(unknown input)", fontsize=8)
             ax.grid(True, alpha=0.3)
     if has_err:
         ax = axes[-1]
@@ -140,7 +149,9 @@ def plot_replay(path: str | Path, *, t: np.ndarray, estimate: np.ndarray,
             ax.axvline(t_start + settle_time, color="tab:green", linestyle=":", linewidth=1.0,
                        label=f"settle time {settle_time:g} s")
         mark(ax, label=True)
-        ax.set_ylabel("error norm")
+        same = set(units[:n]) if len(units) >= n else {""}
+        ax.set_ylabel("error norm" + (f" [{same.pop()}]" if len(same) == 1 and "" not in same
+                                      else " (mixed units)" if any(units) else ""))
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(loc="upper right", fontsize=7, framealpha=0.8)
     if len(t) == 0:

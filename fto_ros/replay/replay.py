@@ -48,7 +48,7 @@ import numpy as np
 
 from ..bag import BagError
 from ..bag.reader import jazzy_typestore
-from ..observers.base import Observer
+from ..plant.block import units_of
 from ..runner.params_file import load_params_files
 from ..runner.runner import LEVEL_NAMES, Runner
 from . import metrics as M
@@ -111,7 +111,8 @@ def replay(bag_path, params_path, out_dir, *, node_name: str | None = None,
     bag_path, out_dir = Path(bag_path), Path(out_dir)
     params_path = params_paths[-1]          # the tuning file, in titles and names
     fqn = node_fqn(node_name)
-    runner = Runner(load_params_files(params_paths, node_name, overrides))
+    flat = load_params_files(params_paths, node_name, overrides)
+    runner = Runner(flat)
     jazzy_typestore()  # one-time library set-up (~50 ms on first use), not part of the replay
     obs = runner.observer
     if (out_dir.exists() or out_dir.is_symlink()) and not overwrite:
@@ -137,7 +138,8 @@ def replay(bag_path, params_path, out_dir, *, node_name: str | None = None,
     if plot:
         p0 = time.perf_counter()
         from .plot import plot_replay
-        plot_replay(out_dir / "replay.png", **plot_data,
+        units, ui_units, _ = units_of(flat)
+        plot_replay(out_dir / "replay.png", **plot_data, units=units, ui_units=ui_units,
                     title=f"{obs.TYPE}: {params_path.name} on {bag_path.name}")
         metrics["plot"] = "replay.png"
         metrics["timing_s"]["plot"] = time.perf_counter() - p0
@@ -315,7 +317,7 @@ def _unknown_input_errors(obs, run: _Run, t_est_ns: np.ndarray, conv: np.ndarray
                           settle: float) -> tuple[dict | None, str | None, tuple | None]:
     """(errors like 'errors' but for the unknown input, a note, plot data) of a finished run."""
     if not run.est_ui:
-        note = None if type(obs).unknown_input is Observer.unknown_input else \
+        note = None if not obs.has_unknown_input else \
             "the observer published no unknown-input estimate"
         return None, note, None
     idx = np.asarray(run.est_ui_idx, dtype=np.int64)

@@ -16,7 +16,6 @@ import numpy as np
 from ..bag import BagReader, BagWriter
 from ..bag.cdr import F64_ARRAY, JOINT_STATE, Encoders
 from ..bag.reader import jazzy_typestore
-from ..observers.base import Observer
 from ..runner.messages import joint_state_sample
 from ..runner.runner import LEVEL_NAMES, Runner, convergence_fields
 from .streams import _check_topic, _read_streams, _Streams
@@ -186,7 +185,7 @@ def _run(runner: Runner, bag_path: Path, out_dir: Path, fqn: str, overwrite: boo
         fields = convergence_fields(obs)
         enc_conv = enc.float_array(len(fields), fields, "list")
         w_ui = w_ui_st = w_js = enc_js = None
-        if type(obs).unknown_input is not Observer.unknown_input:  # the class identifies one
+        if obs.has_unknown_input:
             ui_names = list(getattr(obs, "unknown_input_names", None) or
                             [f"zeta{j}" for j in range(obs.n_outputs)])
             w_ui = bag.raw_writer(f"{fqn}/unknown_input_estimate", F64_ARRAY)

@@ -1,4 +1,7 @@
-"""The one adapter between (t, y, u) samples and an observer, for node AND replay.
+"""The runner of the observer families that have no compiled kernel yet (the per-sample
+work in Python); runner/runner.py hands them to it.  What follows is its original docstring.
+
+The one adapter between (t, y, u) samples and an observer, for node AND replay.
 
 The live node and the replay harness both call ``set_input`` / ``process`` /
 ``status`` here, so replaying a bag in CI exercises exactly what the node does
@@ -23,13 +26,14 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter, deque
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from ..core.errors import ConfigError
 from ..observers.base import Observer, SampleRejected, check_vector
 from . import settings as S
+from .build import changed_names, design_guard
 from .legacy_gate import OutlierGate, channel_limits, exceeds
 from .health import FAILURES, HealthWindow
 from .legacy_timeline import CONFIRM, HOLD, REJECT, STEP, Held, classify
@@ -41,11 +45,15 @@ from .runner import (CONVERGENCE_FIELDS, ERROR, HELD, LEVEL_NAMES, MAX_HELD_INPU
 class LegacyRunner:
     """Validates samples, drives one observer, builds outputs and diagnostics."""
 
-    def __init__(self, flat_params: Mapping[str, Any]):
-        self.settings, self.observer_class, self.observer_config = S.split(flat_params)
-        self.observer: Observer = self.observer_class(self.observer_config)
-        obs = self.observer
-        S.check_settings(self.settings, obs.n_states, obs.n_outputs, obs.n_inputs)
+    def __init__(self, flat_params: Mapping[str, Any], changed: Sequence[str] | None = None):
+        """ConfigError for unusable parameters, whatever fails (build.py): blamed on the
+        ``changed`` names when given (a run-time change), else on the observer's section."""
+        with design_guard(flat_params, changed):
+            self.settings, self.observer_class, self.observer_config = S.split(flat_params)
+            self.observer: Observer = self.observer_class(self.observer_config)
+            obs = self.observer
+            S.check_settings(self.settings, obs.n_states, obs.n_outputs, obs.n_inputs)
+        self._flat = dict(flat_params)
         self.accepted = 0
         self.rejected: Counter[str] = Counter()
         self.resets: Counter[str] = Counter()
@@ -59,6 +67,7 @@ class LegacyRunner:
         self._t_last: float | None = None
         self._t0: float | None = None
         self._held: Held | None = None
+        self._pending: deque = deque(maxlen=MAX_HELD_INPUTS)   # inputs to advance to (set_input)
         self._start_from: np.ndarray | None = None     # ~/set_state: the next start's estimate
         self._last_output: Output | None = None
         self.last_rejection: str | None = None
@@ -91,10 +100,14 @@ class LegacyRunner:
         Raises ConfigError and keeps running the old configuration when the
         new one is unusable.  The observer restarts (counted as 'reconfigure').
         """
-        new = type(self)(flat_params)
+        new = type(self)(flat_params, changed_names(self._flat, flat_params))
         if new.observer_type != self.observer_type:
             raise ConfigError("observer.type", "cannot be changed at run time; restart the node")
+        n_inputs = self.observer.n_inputs
         self.settings, self.observer_config, self.observer = new.settings, new.observer_config, new.observer
+        self._flat = new._flat
+        if self.observer.n_inputs != n_inputs:     # the old input does not fit the new observer
+            self._u, self._t_input = self._no_input(), None
         self._configure()
         self.reset("reconfigure")
 
@@ -110,24 +123,34 @@ class LegacyRunner:
         if reason is not None:
             self._reject(reason)
             return reason
+        if obs.n_inputs == 0:
+            # nothing to store: an empty input must not start the stale_input clock (it made
+            # every later sample stale) nor advance a predictor; it leaves no trace
+            return None
         self._u = np.array(u, dtype=float)
         self._t_input = t
         if self._held is not None and len(self._held.inputs) < MAX_HELD_INPUTS:
             self._held.inputs.append((t, self._u))
         # observers that predict between sparse measurements (single_delay, sampled form)
-        # integrate up to each input change, so a fast input is applied when it changes;
-        # only within a step they can bridge (a longer silence is a gap: restart later)
-        advance = getattr(obs, "advance", None)
-        if advance is not None and self._t0 is not None and self._t_last is not None \
-                and 0.0 <= t - self._t_last <= self._step_limit():
-            try:
-                advance(t, self._u)
-            except SampleRejected as exc:
-                self._reject(exc.reason)
-                return exc.reason
-            except Exception as exc:  # noqa: BLE001  as in process(): restart, never a traceback
-                return self._fail("observer_error", "observer_error", exc)
+        # integrate up to each input instant, so a fast input is applied when it changes;
+        # the runner does it when a measurement reaches the input's stamp (_advance_to), so
+        # an input stamped ahead cannot move the prediction past measurements still to come
+        if self._t0 is not None and getattr(obs, "advance", None) is not None:
+            self._pending.append((t, self._u))
         return None
+
+    def _advance_to(self, t: float) -> None:
+        """Apply the pending inputs stamped up to t, in stamp order, to a predicting
+        observer, each only within a step it can bridge from the last measurement (a longer
+        silence is a gap: restart later).  A refused one is counted, as set_input does."""
+        due = sorted((p for p in self._pending if p[0] <= t), key=lambda p: p[0])
+        self._pending = deque((p for p in self._pending if p[0] > t), maxlen=MAX_HELD_INPUTS)
+        for t_in, u in due:
+            if 0.0 <= t_in - self._t_last <= self._step_limit():
+                try:
+                    self.observer.advance(t_in, u)
+                except SampleRejected as exc:
+                    self._reject(exc.reason)
 
     # -- measurements ------------------------------------------------------------
     def _step_limit(self) -> float:
@@ -201,6 +224,8 @@ class LegacyRunner:
                 x0 = self._start_from if self._start_from is not None else \
                     (self.settings["observer.initial_estimate"] or None)
                 obs.reset(t, None if x0 is None else np.array(x0))
+            elif self._pending:
+                self._advance_to(t)
             obs.update_checked(t, y, self._u)
         except SampleRejected as exc:
             self._reject(exc.reason)
@@ -260,6 +285,7 @@ class LegacyRunner:
         self.resets[reason] += 1
         self._t0 = None
         self._t_last = None
+        self._pending.clear()
         self._gate.clear()
         if reason != "set_state":
             self._start_from = None

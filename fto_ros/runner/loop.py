@@ -2,10 +2,12 @@
 observer's kernel, the output checks and the counters, for a whole block of samples in
 one call, for every joint of the block.
 
-``run_block`` takes events in time order (an input u, a measurement y, or a sample the
-intake already refused, each for every joint) and, per event and joint, writes a status
-(OUTPUT, INPUT_TAKEN, HELD or a rejection code) and, for an accepted measurement, the
-estimate, the unknown-input estimate and the convergence values.  Joints are independent
+``run_block`` takes events in time order (an input u, a measurement y, a measurement
+PAIRED with the input just before it (a JointState carries both: skipped when that input
+was refused, never paired with a bad u), or a sample the intake already refused, each for
+every joint; a negative intake code skips the joint) and, per event and joint, writes a
+status (OUTPUT, INPUT_TAKEN, HELD, SKIPPED or a rejection code) and, for an accepted
+measurement, the estimate, the unknown-input estimate and the convergence values.  Joints are independent
 runners that share the observer family and the settings: a joint's bad sample rejects or
 restarts that joint only.  The same functions run one sample (the Python API of
 runner/runner.py is a block of one), so a block and the same samples one by one give the
@@ -14,7 +16,8 @@ same outputs, rejections, restarts and counts by construction.
 The runner's memory per joint is a float row ``rs`` (scalars below, then arrays at offsets
 the layout ``rl`` gives: the current input, the held sample, the next start's estimate,
 the gate's memory), counters ``rc`` (rejections and restarts by code, then the health
-bucket) and the inputs kept while a sample is held ``rh``; ``cfg`` holds the settings.
+bucket) and ``rh``: the inputs kept while a sample is held, then the inputs a predicting
+observer has still to be advanced to (MAX_HELD_INPUTS of each); ``cfg`` holds the settings.
 The rules are the runner's (runner/runner.py's docstring; docs/architecture.md).
 """
 from __future__ import annotations
@@ -31,8 +34,8 @@ from . import gate as G
 from .timeline import CONFIRM, HOLD, REJECT, STEP, classify
 
 # -- event kinds and statuses ---------------------------------------------------------
-MEASUREMENT, INPUT, REFUSED = 0, 1, 2
-OUTPUT, INPUT_TAKEN, HELD = 0, -2, -1
+MEASUREMENT, INPUT, REFUSED, PAIRED = 0, 1, 2, 3
+OUTPUT, INPUT_TAKEN, HELD, SKIPPED = 0, -2, -1, -3
 #: a ROS builtin_interfaces/Time holds int32 seconds
 MAX_STAMP = float(2 ** 31)
 #: inputs kept while a sample is held (replayed when the next sample confirms the jump)
@@ -41,8 +44,8 @@ MAX_HELD_INPUTS = 10000
 # -- rs: scalars --------------------------------------------------------------------
 (T_LAST, T0, T_INPUT, U_OK, HELD_ON, HELD_T, HELD_TINPUT, HELD_UOK, HELD_KIND, HELD_N,
  START_FROM, ACCEPTED, REBASES, WIN_ACCEPTED, LAST_REJ, HAS_OUT, LAST_RES, LAST_CONV,
- LAST_SINCE, LAST_GT) = range(20)
-RS_SCALARS = 20
+ LAST_SINCE, LAST_GT, PEND_N) = range(21)
+RS_SCALARS = 24
 # -- rl: the layout -----------------------------------------------------------------
 (L_N, L_P, L_M, L_R, L_NCONV, L_U, L_HELD_Y, L_HELD_U, L_X0, L_GATE, L_E, L_CONFIRM,
  L_YLIM, L_ULIM, L_FLOOR, L_INIT) = range(16)
@@ -98,6 +101,7 @@ def reset(rs, rc, rl, reason, requested):
     G.clear(rs[rl[L_GATE]:], p, rl[L_CONFIRM])
     if reason != _SET_STATE:
         rs[START_FROM] = 0.0
+    rs[PEND_N] = 0.0
     if not requested:
         rc[HW_RESTARTS + reason] += 1
 
@@ -175,7 +179,7 @@ def _output(rs, rl, cfg, st, ic, t, ox, oui, oconv):
 
 
 @jit
-def _sample(kernels, models, st, nx, c, ic, wk, clk, rs, rl, rc, cfg, t, y, ox, oui, oconv):
+def _sample(kernels, models, st, nx, c, ic, wk, clk, rs, rl, rc, rh, cfg, t, y, ox, oui, oconv):
     """Hand a classified sample to the observer: OUTPUT (written) or a rejection code."""
     m = rl[L_M]
     if rs[U_OK] == 0.0:
@@ -193,6 +197,8 @@ def _sample(kernels, models, st, nx, c, ic, wk, clk, rs, rl, rc, cfg, t, y, ox, 
             K.restart(kernels, models, st, nx, c, ic, wk, clk, cfg[rl[L_INIT]:rl[L_INIT] + n], True)
         else:
             K.restart(kernels, models, st, nx, c, ic, wk, clk, cfg[0:0], False)
+    elif rs[PEND_N] > 0.0:
+        _advance_to(kernels, models, st, nx, c, ic, wk, clk, rs, rl, rc, rh, cfg, t)
     u = rs[rl[L_U]:rl[L_U] + m]
     code = K.update(kernels, models, st, nx, c, ic, wk, clk, t, y, u)
     if code != 0:
@@ -242,13 +248,57 @@ def set_input(kernels, models, st, nx, c, ic, wk, clk, rs, rl, rc, rh, cfg, t, u
         rh[i * (1 + m)] = t
         rh[i * (1 + m) + 1:(i + 1) * (1 + m)] = u
         rs[HELD_N] += 1.0
-    if ic[K.HAS_ADVANCE] != 0 and rs[T0] == rs[T0] and rs[T_LAST] == rs[T_LAST] \
-            and 0.0 <= t - rs[T_LAST] <= step_limit(c, cfg):
-        code = K.advance(kernels, models, st, nx, c, ic, wk, clk, t, u, cfg[0:0])
-        if code != 0:
-            reject(rs, rc, code)
-            return code
+    # a predicting observer integrates up to each input instant, so a fast input is applied
+    # when it changes; that happens when a measurement reaches the input's stamp
+    # (_advance_to), so an input stamped ahead cannot move the prediction past measurements
+    # still to come
+    if ic[K.HAS_ADVANCE] != 0 and rs[T0] == rs[T0]:
+        w = 1 + m
+        base = MAX_HELD_INPUTS * w
+        n = int(rs[PEND_N])
+        if n == MAX_HELD_INPUTS:                 # full: the oldest goes
+            rh[base:base + (n - 1) * w] = rh[base + w:base + n * w].copy()
+            n -= 1
+        rh[base + n * w] = t
+        rh[base + n * w + 1:base + (n + 1) * w] = u
+        rs[PEND_N] = n + 1
     return INPUT_TAKEN
+
+
+@jit
+def _advance_to(kernels, models, st, nx, c, ic, wk, clk, rs, rl, rc, rh, cfg, t):
+    """Apply the pending inputs stamped up to t, in stamp order, to a predicting observer,
+    each only within a step it can bridge from the last measurement (a longer silence is a
+    gap: restart later).  A refused one is counted, as set_input does."""
+    m = rl[L_M]
+    w = 1 + m
+    base = MAX_HELD_INPUTS * w
+    n = int(rs[PEND_N])
+    pend = rh[base:base + n * w].reshape(n, w)
+    due = np.empty(n, np.int64)
+    keep = np.empty(n, np.int64)
+    nd = 0
+    nk = 0
+    for i in range(n):
+        if pend[i, 0] <= t:
+            due[nd] = i
+            nd += 1
+        else:
+            keep[nk] = i
+            nk += 1
+    order = due[:nd][np.argsort(pend[due[:nd], 0], kind="mergesort")]
+    chosen = pend[order].copy()
+    rest = pend[keep[:nk]].copy()
+    rh[base:base + nk * w] = rest.ravel()
+    rs[PEND_N] = nk
+    limit = step_limit(c, cfg)
+    for i in range(nd):
+        t_in = chosen[i, 0]
+        if 0.0 <= t_in - rs[T_LAST] <= limit:
+            code = K.advance(kernels, models, st, nx, c, ic, wk, clk, t_in, chosen[i, 1:].copy(),
+                             cfg[0:0])
+            if code != 0:
+                reject(rs, rc, code)
 
 
 @jit
@@ -300,7 +350,8 @@ def process(kernels, models, st, nx, c, ic, wk, clk, rs, rl, rc, rh, cfg, t, y, 
             rs[T_INPUT] = _NAN
             rs[U_OK] = 1.0 if m == 0 else 0.0
         yh = rs[rl[L_HELD_Y]:rl[L_HELD_Y] + p].copy()
-        _sample(kernels, models, st, nx, c, ic, wk, clk, rs, rl, rc, cfg, t_held, yh, ox, oui, oconv)
+        _sample(kernels, models, st, nx, c, ic, wk, clk, rs, rl, rc, rh, cfg, t_held, yh, ox, oui,
+                oconv)
         nh = int(rs[HELD_N])
         rs[HELD_N] = 0.0
         for i in range(nh):
@@ -321,30 +372,36 @@ def process(kernels, models, st, nx, c, ic, wk, clk, rs, rl, rc, rh, cfg, t, y, 
         if outcome == G.REBASE:
             rs[REBASES] += 1.0
             rc[HW_REBASE] += 1
-    return _sample(kernels, models, st, nx, c, ic, wk, clk, rs, rl, rc, cfg, t, y, ox, oui, oconv)
+    return _sample(kernels, models, st, nx, c, ic, wk, clk, rs, rl, rc, rh, cfg, t, y, ox, oui,
+                   oconv)
 
 
 # -- a block ---------------------------------------------------------------------------------
 def _run_block(kernels, models, st, nx, c, ic, wk, clk, rs, rl, rc, rh, cfg,
                ev_kind, ev_t, ev_v, ev_pre, o_status, o_x, o_ui, o_conv):
-    """Every event (k) for every joint (j), in order; see the module docstring."""
+    """Every event (k) for every joint (j), in order; see the module docstring.  ``models``
+    holds every joint's model terms; the arrays have a row per joint."""
     joints = st.shape[0]
     p = rl[L_P]
     m = rl[L_M]
+    input_refused = np.zeros(joints, np.bool_)
     for k in range(ev_t.shape[0]):
         kind = ev_kind[k]
         t = ev_t[k]
         for j in range(joints):
             pre = ev_pre[k, j]
-            if kind == REFUSED or pre != 0:
+            if pre < 0 or (kind == PAIRED and input_refused[j]):
+                o_status[k, j] = SKIPPED         # not this joint's event / its input failed
+            elif kind == REFUSED or pre != 0:
                 reject(rs[j], rc[j], pre)
                 o_status[k, j] = pre
             elif kind == INPUT:
-                o_status[k, j] = set_input(kernels, models, st[j], nx[j], c[j], ic[j], wk[j],
+                o_status[k, j] = set_input(kernels, models[j], st[j], nx[j], c[j], ic[j], wk[j],
                                            clk[j], rs[j], rl, rc[j], rh[j], cfg, t,
                                            ev_v[k, j, :m])
+                input_refused[j] = o_status[k, j] > 0
             else:
-                o_status[k, j] = process(kernels, models, st[j], nx[j], c[j], ic[j], wk[j],
+                o_status[k, j] = process(kernels, models[j], st[j], nx[j], c[j], ic[j], wk[j],
                                          clk[j], rs[j], rl, rc[j], rh[j], cfg, t,
                                          ev_v[k, j, :p], o_x[k, j], o_ui[k, j], o_conv[k, j])
     return 0
@@ -368,18 +425,9 @@ def _time_jump(rs, rc, rl, t, reason):
         rs[U_OK] = 1.0 if rl[L_M] == 0 else 0.0
 
 
-if J.ENABLED:
-    from numba import types as _t
-    _A, _I = J.A, J.I
-    _A2, _A3 = _t.float64[:, ::1], _t.float64[:, :, ::1]
-    _I2 = _t.int64[:, ::1]
-    run_block = J.kernel(_run_block, _t.int64(
-        J.KERNELS, J.MODELS, _A2, _A2, _A2, _I2, _A2, _A2, _A2, _I, _I2, _A2, _A,
-        _t.int8[::1], _A, _A3, _t.int16[:, ::1], _t.int16[:, ::1], _A3, _A3, _A3))
-    set_state = J.kernel(_set_state, _t.void(_A, _t.int64[::1], _I, _A))
-    time_jump = J.kernel(_time_jump, _t.void(_A, _t.int64[::1], _I, _t.float64, _t.int64))
-else:
-    run_block, set_state, time_jump = _run_block, _set_state, _time_jump
+# compiled at their first call (after the parameters were validated: a refused
+# configuration never waits for a compiler), cached on disk
+run_block, set_state, time_jump = jit(_run_block), jit(_set_state), jit(_time_jump)
 
 
 def new_state(joints: int, rl: np.ndarray, width: int, held_width: int):
@@ -388,5 +436,5 @@ def new_state(joints: int, rl: np.ndarray, width: int, held_width: int):
     rs[:, [T_LAST, T0, T_INPUT, HELD_T, HELD_TINPUT, LAST_RES]] = _NAN
     rs[:, U_OK] = 1.0 if rl[L_M] == 0 else 0.0
     rc = np.zeros((joints, RC_SIZE), dtype=np.int64)
-    rh = np.zeros((joints, held_width))
+    rh = np.zeros((joints, 2 * held_width))
     return rs, rc, rh

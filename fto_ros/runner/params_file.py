@@ -7,30 +7,31 @@ files overriding earlier ones, then from ``NAME=VALUE`` overrides (``-p NAME:=VA
 block named after the node overrides it; a block for another node is ignored, as rcl
 ignores it, and a file with nothing for the node is refused.
 
-The YAML is read defensively: files larger than :data:`MAX_BYTES`, nesting deeper than
-:data:`MAX_DEPTH`, anchors and aliases (which rcl's parser does not accept either, and
-which expand to gigabytes when printed), and lists mixing integers and decimals (which
-rcl refuses with an opaque message) are refused with one line naming the file and the
-parameter.  ROS-free.
+Every value is read as rcl reads it (:mod:`fto_ros.runner.ros_yaml`: the type of each
+scalar from its text, ``1e-300`` a double, ``~`` a string), so the replay accepts what the
+node accepts.  The YAML is read defensively: files larger than :data:`MAX_BYTES`, and
+(ros_yaml) nesting deeper than its ``MAX_DEPTH``, lists or mappings longer than its
+``MAX_ITEMS``, anchors and aliases (which rcl's parser does not accept either, and which
+expand to gigabytes when printed), and lists mixing types (which rcl refuses with an
+opaque message) are refused with one line naming the file, the parameter and the element.
+ROS-free.
 """
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
-import yaml
-
 from ..core.errors import ConfigError, short
+from .ros_yaml import read_text
 
 DEFAULT_NODE_NAME = "observer_node"
 #: largest params file read (bytes)
 MAX_BYTES = 4 << 20
-#: deepest nesting of mappings and lists accepted
-MAX_DEPTH = 32
 
 
 def read_yaml(path: str | Path) -> Any:
-    """The YAML document in ``path``, or ConfigError('params file', ...) in one line."""
+    """The YAML document in ``path`` read as rcl reads it (ros_yaml.py), or
+    ConfigError('params file', ...) in one line."""
     p = Path(path)
     if not p.is_file():
         raise ConfigError("params file", f"{p} does not exist or is not a file")
@@ -40,36 +41,7 @@ def read_yaml(path: str | Path) -> Any:
         text = p.read_text()
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError("params file", f"cannot read {p}: {short(exc)}") from None
-    try:
-        depth = 0
-        # events first: refuse aliases and deep nesting before anything is built
-        for event in yaml.parse(text, Loader=yaml.SafeLoader):
-            if isinstance(event, yaml.AliasEvent) or getattr(event, "anchor", None):
-                raise ConfigError("params file", f"{p}: YAML anchors and aliases (&, *) are not "
-                                  "supported in params files; write the values out")
-            if isinstance(event, (yaml.MappingStartEvent, yaml.SequenceStartEvent)):
-                depth += 1
-                if depth > MAX_DEPTH:
-                    raise ConfigError("params file", f"{p}: nested deeper than {MAX_DEPTH} levels")
-            elif isinstance(event, (yaml.MappingEndEvent, yaml.SequenceEndEvent)):
-                depth -= 1
-        return yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ConfigError("params file", f"{p} is not valid YAML: {short(exc)}") from None
-
-
-def check_list_types(tree: Any, prefix: str = "") -> None:
-    """rcl refuses lists mixing 1 and 1.0 with an opaque error: refuse them naming the parameter."""
-    if isinstance(tree, dict):
-        for k, v in tree.items():
-            check_list_types(v, f"{prefix}{k}." if k != "ros__parameters" else "")
-        return
-    if isinstance(tree, list):
-        kinds = {type(v) for v in tree}
-        if kinds == {int, float}:
-            raise ConfigError(prefix.rstrip("."), f"the list {short(tree)} mixes integers and "
-                              "decimals, which ROS 2 params files refuse; write every number with "
-                              "a decimal point (e.g. 1.0)")
+    return read_text(text, str(p))
 
 
 def _blocks(doc: Any, p: Path) -> dict[str, dict]:
@@ -82,7 +54,6 @@ def _blocks(doc: Any, p: Path) -> dict[str, dict]:
             raise ConfigError("params file", f"{p}: the block {short(key)} needs a "
                               "'ros__parameters' mapping")
         blocks[name] = block["ros__parameters"]
-    check_list_types(doc)
     return blocks
 
 
@@ -133,19 +104,18 @@ def load_params_files(paths: Iterable[str | Path], node_name: str | None = None,
 
 
 def parse_override(text: str) -> tuple[str, Any]:
-    """``'single_delay.tau=0.05'`` -> ``('single_delay.tau', 0.05)``; the value is read as YAML,
-    as ROS reads ``-p NAME:=VALUE``.  ConfigError for a malformed one."""
+    """``'single_delay.tau=0.05'`` -> ``('single_delay.tau', 0.05)``; the value is read as rcl
+    reads ``-p NAME:=VALUE`` (ros_yaml.py: ``1e-300`` a double, ``[]`` not set).  ConfigError
+    for a malformed one."""
     name, sep, value = text.partition("=")
     name = name.rstrip(":").strip()
     if not sep or not name:
         raise ConfigError("override", f"expected NAME=VALUE, got {short(text)}")
-    try:
-        parsed = yaml.safe_load(value) if value.strip() else ""
-    except yaml.YAMLError as exc:
-        raise ConfigError(name, f"cannot read the value {short(value)}: {short(exc)}") from None
+    if not value.strip():
+        raise ConfigError(name, "no value (write '' for an empty string)")
+    parsed = read_text(value, "the value", name)
     if isinstance(parsed, dict):
         raise ConfigError(name, f"expected a value, got a mapping {short(value)}")
-    check_list_types(parsed, name)
     return name, parsed
 
 

@@ -29,7 +29,7 @@ import math
 import time
 from collections import Counter, deque
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -38,7 +38,10 @@ from ..core.reasons import CODE, REJECTIONS, RESTART_CODE, RESTARTS, REQUESTED
 from ..observers.base import KernelObserver, Observer, check_vector
 from . import gate as G
 from . import loop as L
+from . import joints as JX
 from . import settings as S
+from ..core import jit as J_
+from .build import changed_names, design_guard
 from .health import FAILURES, HealthWindow
 
 OK, WARN, ERROR = 0, 1, 2
@@ -91,48 +94,121 @@ class Block:
 
 
 def reason(status: int) -> str | None:
-    """The rejection reason of a block status (None: an output or a taken input; HELD)."""
+    """The rejection reason of a block status (None: an output, a taken input or a skipped
+    event; HELD)."""
     if status == L.HELD:
         return HELD
     return REJECTIONS[status] if status > 0 else None
 
 
 class Runner:
-    """Validates samples, drives one observer (a compiled kernel), builds outputs and
-    diagnostics.  Observer families not yet compiled run on the previous runner
-    (runner/legacy.py) behind the same interface."""
+    """Validates samples, drives one observer per joint (compiled kernels), builds outputs and
+    diagnostics.  Without ``joints`` there is one "joint": the observer of the whole plant.
+    Observer families not yet compiled run on the previous runner (runner/legacy.py) behind
+    the same interface."""
 
-    def __new__(cls, flat_params: Mapping[str, Any] | None = None):
-        if flat_params is None:                     # copy.deepcopy, _snapshot
+    def __new__(cls, flat_params: Mapping[str, Any] | None = None,
+                changed: Sequence[str] | None = None):
+        if flat_params is None:                     # copy.deepcopy
             return super().__new__(cls)
-        settings, obs_class, obs_config = S.split(flat_params)
+        with design_guard(flat_params, changed):
+            joints = flat_params.get("joints") or []
+            flats = [dict(flat_params)]
+            if isinstance(joints, (list, tuple)) and joints and all(isinstance(j, str) for j in joints):
+                flats = JX.per_joint(flat_params, joints)
+            parts = [S.split(f) for f in flats]
+        obs_class = parts[0][1]
         if cls is Runner and not issubclass(obs_class, KernelObserver):
+            if len(flats) > 1:
+                raise ConfigError("joints", f"{obs_class.TYPE} runs one observer at a time until "
+                                  "its compiled kernel exists: leave joints empty")
             from .legacy import LegacyRunner
-            return LegacyRunner(flat_params)
+            return LegacyRunner(flat_params, changed)
         self = super().__new__(cls)
-        self._split = (settings, obs_class, obs_config)
+        self._split = (flats, parts)
         return self
 
-    def __init__(self, flat_params: Mapping[str, Any] | None = None):
+    def __init__(self, flat_params: Mapping[str, Any] | None = None,
+                 changed: Sequence[str] | None = None):
+        """ConfigError for unusable parameters, whatever fails (build.py): blamed on the
+        ``changed`` names when given (a run-time change), else on the observer's section."""
         if flat_params is None:
             return
-        self.settings, self.observer_class, self.observer_config = self._split
+        flats, parts = self._split
         del self._split
-        self.observer: KernelObserver = self.observer_class(self.observer_config)
-        obs = self.observer
-        S.check_settings(self.settings, obs.n_states, obs.n_outputs, obs.n_inputs)
+        self.settings, self.observer_class, self.observer_config = parts[0]
+        self.joints = list(self.settings["joints"])
+        with design_guard(flat_params, changed):
+            self.observers: list[KernelObserver] = [cls(cfg) for _, cls, cfg in parts]
+            self.observer = obs = self.observers[0]
+            S.check_settings(self.settings, obs.n_states, obs.n_outputs, obs.n_inputs)
+            self._roles = self._joint_roles(flats) if self.joints else None
+        self._flat = dict(flat_params)
         self._update_us: deque[float] = deque(maxlen=2000)
-        self._health = HealthWindow(self.settings["diagnostics.window"])
-        self._extra: Counter[str] = Counter()      # rejections the caller names (not coded)
-        self._last_extra: str | None = None
-        self._extra_resets: Counter[str] = Counter()
+        J = len(self.observers)
+        self._health = [HealthWindow(self.settings["diagnostics.window"]) for _ in range(J)]
+        self._extra = [Counter() for _ in range(J)]     # rejections the caller names (not coded)
+        self._last_extra: list[str | None] = [None] * J
+        self._extra_resets = [Counter() for _ in range(J)]
         self._window_start: float | None = None
         self.last_error: str | None = None
-        self._configure(None)
+        self._stack()
+        self._configure()
+        self._warm()
+
+    def _warm(self) -> None:
+        """Compile (or load from the cache) the block loop for this observer now, not at the
+        first sample: an empty block."""
+        start = time.perf_counter()
+        self._run(self._events(0))
+        J_.COMPILED.note("runner block loop", time.perf_counter() - start)
+
+    def _joint_roles(self, flats) -> list:
+        from ..plant import given, resolve_plant
+        out = []
+        for f, obs in zip(flats, self.observers):
+            plant = resolve_plant(f) if given(f) else None
+            out.append(JX.roles(self.settings, plant, obs.state_names,
+                                obs.unknown_input is not None))
+        return out
+
+    def _stack(self) -> None:
+        """The joints' observer memories as rows of one array each (the adapters keep views
+        of their rows), and every joint's model terms."""
+        progs = [o.program() for o in self.observers]
+        first = progs[0]
+        for j, prog in enumerate(progs[1:], 1):
+            same = all(a.shape == b.shape for a, b in zip(prog[2:], first[2:])) and \
+                np.array_equal(prog[5], first[5])
+            if not same:
+                raise ConfigError("joints", f"the observer of joint {self.joints[j]} has another "
+                                  f"structure than that of {self.joints[0]} (a per-joint constant "
+                                  "changed what the observer derives): give such joints a plant "
+                                  "and a node of their own")
+        arrays = [np.ascontiguousarray(np.stack([p[k] for p in progs])) for k in range(2, 8)]
+        for j, o in enumerate(self.observers):
+            o.adopt(*(a[j] for a in arrays))
+        self._arrays = arrays
+        self._bind()
+
+    def _bind(self) -> None:
+        kernels = self.observer.program()[0]
+        models = J_.function_list([o.program()[1] for o in self.observers], J_.MODELS_BY_JOINT)
+        self._prog = (kernels, models, *self._arrays)
+
+    def __deepcopy__(self, memo):
+        import copy
+        new = object.__new__(type(self))
+        memo[id(self)] = new
+        for k, v in self.__dict__.items():
+            if k not in ("_prog", "_arrays"):
+                new.__dict__[k] = copy.deepcopy(v, memo)
+        new._stack()
+        return new
 
     # -- the compiled runner's arrays ------------------------------------------------------
-    def _configure(self, old: "Runner | None") -> None:
-        """The layout, the settings array and the runner state for the current observer and
+    def _configure(self, old: "Runner | None" = None) -> None:
+        """The layout, the settings array and the runner state for the current observers and
         settings (keeping the counters, the input and a held sample of ``old``)."""
         s, obs = self.settings, self.observer
         n, p, m = obs.n_states, obs.n_outputs, obs.n_inputs
@@ -174,55 +250,46 @@ class Runner:
         self._cfg = np.concatenate(parts)
         self._rl = rl
         self._gate_args = (p, s["outlier.threshold"], int(cfg[L.C_G_MINHIST]))
-        rs, rc, rh = L.new_state(1, rl, width, MAX_HELD_INPUTS * (1 + m))
+        rs, rc, rh = L.new_state(len(self.observers), rl, width, MAX_HELD_INPUTS * (1 + m))
         if old is not None:
-            o = old._rs[0]
-            for k in (L.T_INPUT, L.U_OK, L.HELD_ON, L.HELD_T, L.HELD_TINPUT, L.HELD_UOK,
-                      L.HELD_KIND, L.HELD_N, L.ACCEPTED, L.REBASES, L.WIN_ACCEPTED, L.LAST_REJ,
-                      L.HAS_OUT, L.LAST_RES, L.LAST_CONV, L.LAST_SINCE, L.LAST_GT):
-                rs[0, k] = o[k]
             orl = old._rl
-            rs[0, rl[L.L_U]:rl[L.L_U] + m] = o[orl[L.L_U]:orl[L.L_U] + m]
-            rs[0, rl[L.L_HELD_Y]:rl[L.L_HELD_Y] + p] = o[orl[L.L_HELD_Y]:orl[L.L_HELD_Y] + p]
-            rs[0, rl[L.L_HELD_U]:rl[L.L_HELD_U] + m] = o[orl[L.L_HELD_U]:orl[L.L_HELD_U] + m]
+            same_inputs = orl[L.L_M] == m          # else the old input does not fit: forgotten
+            for j in range(rs.shape[0]):
+                o = old._rs[j]
+                for k in (L.ACCEPTED, L.REBASES, L.WIN_ACCEPTED, L.LAST_REJ, L.HAS_OUT,
+                          L.LAST_RES, L.LAST_CONV, L.LAST_SINCE, L.LAST_GT):
+                    rs[j, k] = o[k]
+                if same_inputs:
+                    for k in (L.T_INPUT, L.U_OK, L.HELD_ON, L.HELD_T, L.HELD_TINPUT, L.HELD_UOK,
+                              L.HELD_KIND, L.HELD_N):
+                        rs[j, k] = o[k]
+                    for key, w in ((L.L_U, m), (L.L_HELD_Y, p), (L.L_HELD_U, m)):
+                        rs[j, rl[key]:rl[key] + w] = o[orl[key]:orl[key] + w]
             rc[:] = old._rc
-            rh[:] = old._rh
+            if same_inputs:
+                rh[:] = old._rh
         self._rs, self._rc, self._rh = rs, rc, rh
-        self._bind()
         self._js = self._joint_state_mapping()
-        self._health.window = s["diagnostics.window"]
+        for h in self._health:
+            h.window = s["diagnostics.window"]
         self._one = self._events(1)
 
-    def _bind(self) -> None:
-        """The observer's arrays as rows of the (one-joint) arrays the block loop takes."""
-        kernels, models, st, nx, c, ic, wk, clk = self.observer.program()
-        self._prog = (kernels, models) + tuple(a.reshape(1, -1) for a in (st, nx, c, ic, wk, clk))
-
-    def __deepcopy__(self, memo):
-        import copy
-        new = object.__new__(type(self))
-        memo[id(self)] = new
-        for k, v in self.__dict__.items():
-            if k != "_prog":
-                new.__dict__[k] = copy.deepcopy(v, memo)
-        new._bind()
-        return new
 
     def _events(self, count: int):
-        """Event buffers and output arrays for ``count`` events of one joint."""
-        v = max(self.observer.n_outputs, self.observer.n_inputs, 1)
-        return (np.zeros(count, np.int8), np.zeros(count), np.zeros((count, 1, v)),
-                np.zeros((count, 1), np.int16), np.zeros((count, 1), np.int16),
-                np.zeros((count, 1, self.observer.n_states)), np.zeros((count, 1, self._r)),
-                np.zeros((count, 1, self._nconv)))
+        """Event buffers and output arrays for ``count`` events of every joint."""
+        J, obs = len(self.observers), self.observer
+        v = max(obs.n_outputs, obs.n_inputs, 1)
+        return (np.zeros(count, np.int8), np.zeros(count), np.zeros((count, J, v)),
+                np.zeros((count, J), np.int16), np.zeros((count, J), np.int16),
+                np.zeros((count, J, obs.n_states)), np.zeros((count, J, self._r)),
+                np.zeros((count, J, self._nconv)))
 
     def _run(self, ev) -> None:
         start = time.perf_counter()
         L.run_block(*self._prog, self._rs, self._rl, self._rc, self._rh, self._cfg, *ev)
         count = ev[1].shape[0]
         if count:
-            us = (time.perf_counter() - start) * 1e6 / count
-            self._update_us.append(us)
+            self._update_us.append((time.perf_counter() - start) * 1e6 / count)
 
     # -- configuration ------------------------------------------------------
     @property
@@ -234,29 +301,40 @@ class Runner:
         """The labels of the ``convergence`` values: the common ones, then the observer's."""
         return convergence_fields(self.observer)
 
+    @property
+    def n_joints(self) -> int:
+        """Observers this runner runs side by side (1 without ``joints``)."""
+        return len(self.observers)
+
     def reconfigure(self, flat_params: Mapping[str, Any]) -> None:
-        """Apply changed parameters: validate everything, then swap in a new observer.
+        """Apply changed parameters: validate everything, then swap in new observers.
 
         Raises ConfigError and keeps running the old configuration when the
-        new one is unusable.  The observer restarts (counted as 'reconfigure').
+        new one is unusable.  The observers restart (counted as 'reconfigure').
         """
-        new = Runner(flat_params)
+        new = Runner(flat_params, changed_names(self._flat, flat_params))
         if new.observer_type != self.observer_type:
             raise ConfigError("observer.type", "cannot be changed at run time; restart the node")
-        old = self._snapshot()
-        self.settings, self.observer_config, self.observer = new.settings, new.observer_config, new.observer
-        self._configure(old)
+        if new.joints != self.joints:
+            raise ConfigError("joints", "cannot be changed at run time; restart the node")
+        new._configure(self)                     # the counters, inputs and held samples go on
+        for k in ("settings", "observer_config", "observer", "observers", "_roles", "_arrays",
+                  "_prog", "_r", "_nconv", "_cfg", "_rl", "_gate_args", "_rs", "_rc", "_rh",
+                  "_js", "_one", "_flat"):
+            setattr(self, k, getattr(new, k))
+        for h in self._health:
+            h.window = self.settings["diagnostics.window"]
         self.reset("reconfigure")
 
-    def _snapshot(self) -> "Runner":
-        """The arrays ``_configure`` carries over (a shallow stand-in)."""
-        snap = Runner()
-        snap._rs, snap._rl, snap._rc, snap._rh = self._rs, self._rl, self._rc, self._rh
-        return snap
-
     # -- samples ----------------------------------------------------------------------
+    def _single(self) -> None:
+        if len(self.observers) != 1:
+            raise TypeError("a runner of several joints takes samples through process_joints "
+                            "or process_block")
+
     def set_input(self, t: float, u) -> str | None:
         """Store the known input u valid from time t on.  Returns a rejection reason or None."""
+        self._single()
         bad = check_vector(u, self.observer.n_inputs, "input")
         if bad is not None:
             self.reject(bad)
@@ -264,6 +342,7 @@ class Runner:
         kind, ts, vals, pre, status = self._one[:5]
         kind[0] = L.INPUT
         ts[0] = t
+        pre[0, 0] = 0
         vals[0, 0, :self.observer.n_inputs] = u
         self._run(self._one)
         return reason(int(status[0, 0]))
@@ -272,6 +351,7 @@ class Runner:
         """Feed the measurement y taken at t.  Returns the Output, or why there is none:
         a rejection reason (counted), or ``HELD`` (held at a time discontinuity until the
         next sample confirms it)."""
+        self._single()
         obs = self.observer
         bad = check_vector(y, obs.n_outputs, "measurement")
         if bad is not None:
@@ -281,140 +361,192 @@ class Runner:
         kind, ts, vals, pre, status, ox, oui, oconv = ev
         kind[0] = L.MEASUREMENT
         ts[0] = t
+        pre[0, 0] = 0
         vals[0, 0, :obs.n_outputs] = y
         self._run(ev)
         st = int(status[0, 0])
         if st != L.OUTPUT:
             return reason(st)
-        return self._output(t, ox[0, 0], oui[0, 0], oconv[0, 0])
+        return self._output(t, 0, ox[0, 0], oui[0, 0], oconv[0, 0])
+
+    def process_joints(self, t: float, y: np.ndarray, u: np.ndarray | None = None,
+                       refused: np.ndarray | None = None) -> list[Output | str | None]:
+        """One message for every joint (a JointState): the inputs u (J x m; None: no input
+        in this message), then the measurements y (J x p) at t, each joint's own.
+        ``refused[j]`` is the intake's rejection code for joint j (0: none; its values are
+        then not used, the rejection counted once).  Per joint: its Output, a rejection
+        reason, None (its input was refused: the measurement is not paired with it), or
+        HELD."""
+        J, obs = len(self.observers), self.observer
+        count = 1 if u is None else 2
+        ev = self._events(count)
+        kind, ts, vals, pre, status, ox, oui, oconv = ev
+        ts[:] = t
+        if refused is not None:
+            pre[-1] = refused
+            if count == 2:
+                pre[0] = np.where(np.asarray(refused) != 0, -1, 0)
+        if u is not None:
+            kind[0] = L.INPUT
+            vals[0, :, :obs.n_inputs] = u
+        kind[-1] = L.PAIRED if u is not None else L.MEASUREMENT
+        vals[-1, :, :obs.n_outputs] = y
+        self._run(ev)
+        out: list[Output | str | None] = []
+        for j in range(J):
+            st = int(status[-1, j])
+            if st == L.SKIPPED:
+                out.append(reason(int(status[0, j])) if count == 2 else None)
+            elif st == L.OUTPUT:
+                out.append(self._output(t, j, ox[-1, j], oui[-1, j], oconv[-1, j]))
+            else:
+                out.append(reason(st))
+        return out
 
     def process_block(self, kind: np.ndarray, t: np.ndarray, values: np.ndarray,
                       refused: np.ndarray | None = None) -> Block:
         """Many events at once, in time order: ``kind[k]`` (loop.MEASUREMENT, loop.INPUT,
-        loop.REFUSED), ``t[k]``, ``values[k]`` (y or u: ``(K, width)`` or ``(K, 1, width)``)
-        and ``refused[k]`` (the intake's rejection code of a REFUSED event, else 0).  The same
-        outputs, rejections and restarts as the events one by one through ``process`` and
-        ``set_input``."""
+        loop.REFUSED), ``t[k]``, ``values[k]`` (y or u: ``(K, width)`` for one joint or
+        ``(K, J, width)``) and ``refused[k]`` (``(K,)`` or ``(K, J)``: the intake's
+        rejection code, else 0).  The same outputs, rejections and restarts as the events
+        one by one through ``process`` and ``set_input``."""
+        J, obs = len(self.observers), self.observer
         count = len(t)
         kind = np.ascontiguousarray(kind, dtype=np.int8)
         t = np.ascontiguousarray(t, dtype=float)
         values = np.asarray(values, dtype=float)
         if values.ndim == 2:
             values = values[:, None, :]
-        width = max(self.observer.n_outputs, self.observer.n_inputs, 1)
+        width = max(obs.n_outputs, obs.n_inputs, 1)
         if values.shape[2] < width:
-            values = np.concatenate((values, np.zeros((count, 1, width - values.shape[2]))), axis=2)
-        values = np.ascontiguousarray(values)
-        pre = np.zeros((count, 1), np.int16) if refused is None else \
-            np.ascontiguousarray(np.asarray(refused, dtype=np.int16).reshape(count, 1))
+            values = np.concatenate((values, np.zeros(values.shape[:2] + (width - values.shape[2],))),
+                                    axis=2)
+        values = np.ascontiguousarray(np.broadcast_to(values, (count, J, values.shape[2])))
+        pre = np.zeros((count, J), np.int16)
+        if refused is not None:
+            r = np.asarray(refused, dtype=np.int16)
+            pre[:] = r.reshape(count, 1) if r.ndim == 1 else r
         ev = (kind, t, values, pre) + self._events(count)[4:]
         self._run(ev)
         return Block(ev[4], ev[5], ev[6], ev[7])
 
-    def _output(self, t, x, ui, conv) -> Output:
+    def _output(self, t, j, x, ui, conv) -> Output:
         x = x.copy()
         js = None
         if self._js is not None:
             names, idx = self._js
             js = (names,) + tuple([float(x[i]) for i in ix] if ix is not None else [] for ix in idx)
-        return Output(t, x, ui.copy() if self.observer.unknown_input is not None else None,
-                      conv.copy(), js)
+        return Output(t, x, ui.copy() if self._r else None, conv.copy(), js)
 
-    @property
-    def last_sample_time(self) -> float | None:
+    def last_sample_time(self, joint: int = 0) -> float | None:
         """Time of the last accepted measurement since the last restart (None right after one)."""
-        v = self._rs[0, L.T_LAST]
+        v = self._rs[joint, L.T_LAST]
         return None if math.isnan(v) else float(v)
 
     def time_jump(self, t: float) -> None:
         """Time went back to t (bag loop, sim time reset, told by the node's clock): restart
         at once, and forget an input stamped after t, which belongs to the old timeline."""
-        L.time_jump(self._rs[0], self._rc[0], self._rl, float(t), RESTART_CODE["time_jump"])
+        for j in range(len(self.observers)):
+            L.time_jump(self._rs[j], self._rc[j], self._rl, float(t), RESTART_CODE["time_jump"])
 
-    def set_state(self, x) -> str | None:
-        """Restart the observer from the estimate x (plant coordinates) at the next sample:
-        the node's ``~/set_state``.  None when taken, else why not (length, non-finite,
-        beyond ``limits.estimate``); counted as the restart ``set_state``."""
+    def set_state(self, x, joint: int = 0) -> str | None:
+        """Restart the observer (of ``joint``) from the estimate x (plant coordinates) at the
+        next sample: the node's ``~/set_state``.  None when taken, else why not (length,
+        non-finite, beyond ``limits.estimate``); counted as the restart ``set_state``."""
         n = self.observer.n_states
         bad = check_vector(x, n, "state")
         if bad is None and any(abs(v) > self.settings["limits.estimate"] for v in x):
             bad = "state_implausible"
         if bad is not None:
             return bad
-        L.set_state(self._rs[0], self._rc[0], self._rl, np.asarray(x, dtype=float))
-        self._requested()
+        L.set_state(self._rs[joint], self._rc[joint], self._rl, np.asarray(x, dtype=float))
+        self._requested(joint)
         return None
 
-    def reset(self, reason_: str = "service") -> None:
-        """Restart the observer at the next sample (counted under ``reason_``).  A reset
-        requested by a person (``service``, ``enable``, ``reconfigure``, ``set_state``) also
-        clears the health window: the diagnostics level starts afresh."""
+    def reset(self, reason_: str = "service", joint: int | None = None) -> None:
+        """Restart the observer (of every joint, or of ``joint``) at the next sample
+        (counted under ``reason_``).  A reset requested by a person (``service``, ``enable``,
+        ``reconfigure``, ``set_state``) also clears the health window: the diagnostics level
+        starts afresh."""
         requested = reason_ in REQUESTED
         code = RESTART_CODE.get(reason_)
-        if code is None:                            # a reason of the caller's own
-            self._extra_resets[reason_] += 1
-            code = RESTART_CODE["other"]
-        L.reset(self._rs[0], self._rc[0], self._rl, code, requested)
-        if requested:
-            self._requested()
+        for j in (range(len(self.observers)) if joint is None else (joint,)):
+            c = code
+            if c is None:                               # a reason of the caller's own
+                self._extra_resets[j][reason_] += 1
+                c = RESTART_CODE["other"]
+            L.reset(self._rs[j], self._rc[j], self._rl, c, requested)
+            if requested:
+                self._requested(j)
 
-    def _requested(self) -> None:
-        self._rc[0, L.HW:] = 0
-        self._health.clear()
+    def _requested(self, j: int) -> None:
+        self._rc[j, L.HW:] = 0
+        self._health[j].clear()
         self.last_error = None
 
-    def reject(self, reason_: str) -> None:
+    def reject(self, reason_: str, joint: int | None = None) -> None:
         """Count a sample the caller refused before it reached the runner (e.g. a
-        JointState without the configured joint, a future stamp)."""
+        JointState without the configured joint, a future stamp): for every joint, or for
+        ``joint``."""
         code = CODE.get(reason_)
-        if code is None:
-            self._extra[reason_] += 1
-            self._rc[0, L.HW_REJECTED] += 1
-            self._last_extra = reason_
-            self._rs[0, L.LAST_REJ] = -1.0
-        else:
-            L.reject(self._rs[0], self._rc[0], code)
+        for j in (range(len(self.observers)) if joint is None else (joint,)):
+            if code is None:
+                self._extra[j][reason_] += 1
+                self._rc[j, L.HW_REJECTED] += 1
+                self._last_extra[j] = reason_
+                self._rs[j, L.LAST_REJ] = -1.0
+            else:
+                L.reject(self._rs[j], self._rc[j], code)
 
-    # -- counters by name -----------------------------------------------------------------
+    # -- counters by name (summed over the joints) -------------------------------------------
     @property
     def accepted(self) -> int:
-        return int(self._rs[0, L.ACCEPTED])
+        return int(self._rs[:, L.ACCEPTED].sum())
 
     @property
     def rebases(self) -> int:
-        return int(self._rs[0, L.REBASES])
+        return int(self._rs[:, L.REBASES].sum())
+
+    def rejected_of(self, j: int) -> Counter:
+        out = Counter({REJECTIONS[i]: int(v) for i, v in enumerate(self._rc[j, :L.NREJ]) if v})
+        out.update(self._extra[j])
+        return out
+
+    def resets_of(self, j: int) -> Counter:
+        out = Counter({RESTARTS[i]: int(v) for i, v in
+                       enumerate(self._rc[j, L.NREJ:L.NREJ + L.NRST]) if v and RESTARTS[i] != "other"})
+        out.update(self._extra_resets[j])
+        return out
 
     @property
     def rejected(self) -> Counter:
-        out = Counter({REJECTIONS[i]: int(v) for i, v in enumerate(self._rc[0, :L.NREJ]) if v})
-        out.update(self._extra)
-        return out
+        return sum((self.rejected_of(j) for j in range(len(self.observers))), Counter())
 
     @property
     def resets(self) -> Counter:
-        out = Counter({RESTARTS[i]: int(v) for i, v in
-                       enumerate(self._rc[0, L.NREJ:L.NREJ + L.NRST]) if v and RESTARTS[i] != "other"})
-        out.update(self._extra_resets)
-        return out
+        return sum((self.resets_of(j) for j in range(len(self.observers))), Counter())
+
+    def last_rejection_of(self, j: int) -> str | None:
+        code = int(self._rs[j, L.LAST_REJ])
+        if code < 0:
+            return self._last_extra[j]
+        return REJECTIONS[code] if code > 0 else None
 
     @property
     def last_rejection(self) -> str | None:
-        code = int(self._rs[0, L.LAST_REJ])
-        if code < 0:
-            return self._last_extra
-        return REJECTIONS[code] if code > 0 else None
+        return self.last_rejection_of(0)
 
-    def _take_health(self) -> None:
-        """Move the compiled loop's health bucket into the health window."""
-        row = self._rc[0]
+    def _take_health(self, j: int) -> None:
+        """Move the compiled loop's health bucket of joint j into its health window."""
+        row, health = self._rc[j], self._health[j]
         for name_, idx in (("accepted", L.HW_ACCEPTED), ("rejected", L.HW_REJECTED),
                            ("rebase", L.HW_REBASE)):
             if row[idx]:
-                self._health.count(name_, int(row[idx]))
+                health.count(name_, int(row[idx]))
         for i, name_ in enumerate(RESTARTS):
             v = row[L.HW_RESTARTS + i]
             if v and name_ != "other":
-                self._health.count(name_, int(v))
+                health.count(name_, int(v))
         row[L.HW:] = 0
 
     def _joint_state_mapping(self):
@@ -434,10 +566,16 @@ class Runner:
                 idx.append(ix)
         return names, idx
 
+    @property
+    def roles(self):
+        """Per joint (per-joint mode): which state is its position and velocity and where its
+        effort comes from (runner/joints.py); None without ``joints``."""
+        return self._roles
+
     # -- diagnostics --------------------------------------------------------
-    def state_name(self) -> str:
+    def state_name(self, joint: int = 0) -> str:
         """'waiting', 'converging', 'converged' or 'diverging'."""
-        rs = self._rs[0]
+        rs = self._rs[joint]
         if rs[L.HAS_OUT] == 0.0 or math.isnan(rs[L.T0]):
             return "waiting"
         if not rs[L.LAST_CONV]:
@@ -454,36 +592,58 @@ class Runner:
         a = np.fromiter(self._update_us, float)
         return float(np.percentile(a, 50)), float(np.percentile(a, 99))
 
-    def _last_convergence(self) -> tuple[float, float, float] | None:
-        """(time since start, guaranteed time, residual) of the last output, if any."""
-        rs = self._rs[0]
-        if rs[L.HAS_OUT] == 0.0:
-            return None
-        return float(rs[L.LAST_SINCE]), float(rs[L.LAST_GT]), float(rs[L.LAST_RES])
-
     def status(self, now: float | None = None) -> Status:
-        """The diagnostics status; the level from the last ``diagnostics.window`` seconds
-        of ``now`` (the caller's clock: node ROS time, replay sample time), see health.py."""
-        obs, s = self.observer, self.settings
-        self._take_health()
-        state = self.state_name()
-        recent = self._health.close(now)
-        rs = self._rs[0]
+        """The diagnostics status (of the one observer; with several joints, the summary of
+        theirs: the worst level, and the joints that are not OK); the level from the last
+        ``diagnostics.window`` seconds of ``now`` (the caller's clock: node ROS time, replay
+        sample time), see health.py."""
+        statuses = self.statuses(now)
+        return statuses[0]
+
+    def statuses(self, now: float | None = None) -> list[Status]:
+        """[the status] with one joint; [summary, joint 1, ..., joint J] with several."""
+        J = len(self.observers)
+        each = [self._joint_status(now, j) for j in range(J)]
+        self._window_start = now
+        self._rs[:, L.WIN_ACCEPTED] = 0.0
+        if J == 1:
+            return each
+        worst = max(st.level for st in each)
+        bad = [f"{name}: {st.message}" for name, st in zip(self.joints, each) if st.level > OK]
+        values = [("observer", self.observer.TYPE), ("joints", ", ".join(self.joints)),
+                  ("samples accepted", str(self.accepted)),
+                  ("samples rejected", str(sum(self.rejected.values())))]
+        values += [(f"{name}: state", self.state_name(j)) for j, name in enumerate(self.joints)]
+        p50, p99 = self.update_time_us()
+        values.append(("update time p50/p99 (us, all joints)", f"{p50:.1f} / {p99:.1f}"))
+        message = "all joints OK" if not bad else "; ".join(bad)
+        return [Status(worst, message, values)] + each
+
+    def _joint_status(self, now: float | None, j: int) -> Status:
+        obs, s = self.observers[j], self.settings
+        self._take_health(j)
+        state = self.state_name(j)
+        recent = self._health[j].close(now)
+        rs = self._rs[j]
         values: list[tuple[str, str]] = [("observer", obs.TYPE), ("state", state)]
+        if self.joints:
+            values.insert(0, ("joint", self.joints[j]))
         level, problems = OK, []
-        last = self._last_convergence()
-        if last is not None:
-            since, gt, res = last
-            values += [("time since start (s)", f"{since:.4f}"),
+        if rs[L.HAS_OUT] != 0.0:
+            gt = float(rs[L.LAST_GT])
+            values += [("time since start (s)", f"{float(rs[L.LAST_SINCE]):.4f}"),
                        ("guaranteed convergence time (s)",
                         "none" if math.isinf(gt) else f"{gt:.4g}"),
-                       ("output residual", f"{res:.4g}")]
-        values += [("samples accepted", str(self.accepted)),
-                   ("samples rejected", str(sum(self.rejected.values())))]
-        values += [(f"rejected: {k}", str(v)) for k, v in sorted(self.rejected.items())]
-        values += [(f"restarts: {k}", str(v)) for k, v in sorted(self.resets.items())]
+                       ("output residual", f"{float(rs[L.LAST_RES]):.4g}")]
+        accepted = int(rs[L.ACCEPTED])
+        rejected = self.rejected_of(j)
+        values += [("samples accepted", str(accepted)),
+                   ("samples rejected", str(sum(rejected.values())))]
+        values += [(f"rejected: {k}", str(v)) for k, v in sorted(rejected.items())]
+        values += [(f"restarts: {k}", str(v)) for k, v in sorted(self.resets_of(j).items())]
+        rebases = int(rs[L.REBASES])
         gate = G.summary(rs[self._rl[L.L_GATE]:], *self._gate_args)
-        values.append(("outlier gate", gate + (f"; re-based {self.rebases} time(s)" if self.rebases else "")))
+        values.append(("outlier gate", gate + (f"; re-based {rebases} time(s)" if rebases else "")))
         if obs.n_inputs:
             t_in = rs[L.T_INPUT]
             age = (now - t_in) if (now is not None and not math.isnan(t_in)) else None
@@ -509,7 +669,7 @@ class Runner:
         if recent.get("rejected"):
             level = WARN
             problems.append(f"{recent['rejected']} sample(s) rejected in the {window} "
-                            f"(last: {self.last_rejection})")
+                            f"(last: {self.last_rejection_of(j)})")
         if recent.get("rebase"):
             level = WARN
             problems.append("the outlier gate accepted a persisting change of the signal")
@@ -518,9 +678,9 @@ class Runner:
             problems.append("output residual above convergence.residual_threshold after the guaranteed time")
         if state == "waiting":
             level = WARN
-            problems.append("no accepted measurement yet" if self.accepted == 0 else "restarted, waiting for a sample")
-        idle = self._health.idle_for(now)
-        if self.accepted and idle > s["diagnostics.stale_after"]:
+            problems.append("no accepted measurement yet" if accepted == 0 else "restarted, waiting for a sample")
+        idle = self._health[j].idle_for(now)
+        if accepted and idle > s["diagnostics.stale_after"]:
             level = WARN
             problems.append(f"no measurement accepted for {idle:.1f} s")
         if self.last_error:
@@ -529,7 +689,5 @@ class Runner:
             level = ERROR
             problems.append(f"the observer failed (non-finite or implausible values, or an internal "
                             f"error) and was restarted in the {window}")
-        self._window_start = now
-        rs[L.WIN_ACCEPTED] = 0.0
         message = state if not problems else f"{state}: " + "; ".join(problems)
         return Status(level, message, values)

@@ -10,7 +10,7 @@ from typing import Any, Mapping
 
 from ..core.errors import ConfigError
 from ..observers import REGISTRY, observer_class
-from ..observers.base import Param, resolve
+from ..observers.base import Param, check_size, resolve
 from ..observers.track import TrackObserver
 from ..plant import expand as expand_plant
 from .params_file import flatten, load_params_file, load_params_files  # noqa: F401  (re-exported)
@@ -33,6 +33,26 @@ SETTINGS: tuple[Param, ...] = (
     Param("topics.true_unknown_input", "string", "true_unknown_input", "ground-truth unknown-input "
           "Float64MultiArray topic (replay only: compared with unknown_input_estimate when the bag "
           "has it)"),
+    Param("joints", "string_array", [], "the joints of an arm, by name: one observer of the "
+          "plant (the model of ONE joint) per joint, all run in one call per message; y and u "
+          "of each come from its entry in the JointState (joint_states.output_fields, "
+          "input_fields), a constant may differ per joint ('name=[v1, ..., vJ]' in "
+          "plant.constants). Empty: one observer over the plant (y and u as the other "
+          "joint_states.* settings say)"),
+    Param("joint_states.output_fields", "string_array", ["position"], "per-joint mode "
+          "(joints): the JointState fields that give each joint's y, in the plant's output "
+          "order", choices=FIELDS),
+    Param("joint_states.input_fields", "string_array", ["effort"], "per-joint mode (joints): "
+          "the JointState fields that give each joint's u, in the plant's input order (only "
+          "the first m are used)", choices=FIELDS),
+    Param("joints.position_state", "string", "", "per-joint mode: the state published as each "
+          "joint's position (empty: the state the plant's h measures)"),
+    Param("joints.velocity_state", "string", "", "per-joint mode: the state published as each "
+          "joint's velocity (empty: the state the position's derivative f equals; none if no "
+          "state does)"),
+    Param("joints.effort", "string", "", "per-joint mode: what each joint's effort is: "
+          "'unknown_input' (the observer's unknown-input estimate), a state name, 'none', or "
+          "empty (the unknown input when the observer identifies one, else none)"),
     Param("joint_states.output_joints", "string_array", [], "joints whose field gives y, in order"),
     Param("joint_states.output_field", "string", "position", "JointState field giving y", choices=FIELDS),
     Param("joint_states.input_joints", "string_array", [], "joints whose field gives u, in order"),
@@ -136,6 +156,8 @@ def split(flat: Mapping[str, Any]) -> tuple[dict[str, Any], type, dict[str, Any]
     expanded first into the chosen observer's explicit parameters (fto_ros.plant); a
     composition (``track``) gets its children's classes and configs in its config.
     """
+    for k, v in flat.items():                  # sizes first: nothing is parsed before
+        check_size(k, v)
     known = {p.name for p in SETTINGS}
     type_name = flat.get("observer.type")
     if type_name is None:
@@ -158,7 +180,18 @@ def check_settings(settings: Mapping[str, Any], n_states: int, n_outputs: int, n
     x0 = settings["observer.initial_estimate"]
     if x0 and len(x0) != n_states:
         raise ConfigError("observer.initial_estimate", f"expected {n_states} values, got {len(x0)}")
-    if settings["source"] == "joint_states":
+    if settings["joints"]:
+        if settings["source"] != "joint_states":
+            raise ConfigError("source", "per-joint mode (joints) reads every joint from one "
+                              "JointState: set source: joint_states")
+        if len(settings["joint_states.output_fields"]) != n_outputs:
+            raise ConfigError("joint_states.output_fields", f"expected {n_outputs} field(s), one "
+                              f"per output of the joint's plant, got "
+                              f"{settings['joint_states.output_fields']}")
+        if len(settings["joint_states.input_fields"]) < n_inputs:
+            raise ConfigError("joint_states.input_fields", f"expected {n_inputs} field(s), one per "
+                              f"input of the joint's plant, got {settings['joint_states.input_fields']}")
+    elif settings["source"] == "joint_states":
         if len(settings["joint_states.output_joints"]) != n_outputs:
             raise ConfigError("joint_states.output_joints", f"expected {n_outputs} joint name(s) "
                               f"(one per output), got {settings['joint_states.output_joints']}")

@@ -47,7 +47,6 @@ def _scheduler(text: str) -> str:
 
 def build_parser() -> argparse.ArgumentParser:
     from ..cli.args import non_negative_float, positive_float, positive_int
-    from ..replay import DEFAULT_NODE_NAME, DEFAULT_TOLERANCE
     p = _Parser(
         prog=PROG,
         description="Replay every combination of the --set values on every bag (the replay "
@@ -62,7 +61,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "more bags")
     p.add_argument("--set", action="append", default=[], metavar="NAME=V1,V2,...",
                    help="swept parameter: full name (e.g. single_delay.tau) and its values, "
-                        "each read as YAML like fto-replay --set; commas inside brackets or "
+                        "each read as ROS reads it, like fto-replay --set; commas inside brackets or "
                         "quotes do not split, so list values work: "
                         "luenberger.process_noise=[1e-6, 0.25, 0.04],[1e-6, 1.0, 0.04]")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory")
@@ -87,14 +86,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-plots", action="store_true", help="write no figures")
     p.add_argument("--overwrite", action="store_true",
                    help="replace the results of an earlier sweep in DIR")
-    p.add_argument("--tolerance", type=positive_float, default=DEFAULT_TOLERANCE, metavar="TOL",
-                   help=f"error bound (state units) for the measured convergence time "
-                        f"(default {DEFAULT_TOLERANCE:g})")
+    # the defaults are fto-replay's, said in words: importing them would import the whole
+    # replay before the progress bar can show (test_sweep.py checks that they agree)
+    p.add_argument("--tolerance", type=positive_float, default=None, metavar="TOL",
+                   help="error bound (state units) for the measured convergence time "
+                        "(default 0.01, as fto-replay)")
     p.add_argument("--after", type=non_negative_float, default=None, metavar="T",
                    help="settle time (s after the observer starts) for the errors (default: the "
                         "params' metrics.settle_time, else the guaranteed time + 0.01 s, or 0.11 s)")
     p.add_argument("--node-name", default=None, metavar="N",
-                   help=f"node name selecting the params block (default {DEFAULT_NODE_NAME})")
+                   help="node name selecting the params block (default observer_node)")
     p.add_argument("--quiet", action="store_true", help="no line per finished run on stderr")
     return p
 
@@ -111,11 +112,27 @@ def main(argv=None) -> int:
 
 
 def _main(args) -> int:
+    from ..cli.progress import bar
+    from .engine import prestart
+    prestart(args.workers, args.scheduler)        # the workers' imports start now, beside ours
+    progress = bar(0, "runs", enabled=not args.quiet)
+    progress.set_postfix_str("loading")
+    try:
+        return _sweep(args, progress)
+    finally:
+        progress.close()
+
+
+def _sweep(args, progress) -> int:
+    from ..cli.progress import say
     from ..core.errors import ConfigError
     from ..runner.params_file import load_params_files
     from . import grid, plots, results
     from .engine import Engine, EngineError, Lost
     from .tasks import RUNTIME, Outcome, Run, bag_size, execute, read_files
+    from ..replay import DEFAULT_TOLERANCE
+    if args.tolerance is None:
+        args.tolerance = DEFAULT_TOLERANCE
 
     # ---- everything that can be refused before a single run (exit 2, then 1)
     baselines = [tuple(f.strip() for f in b.split(",") if f.strip()) for b in args.baseline]
@@ -150,15 +167,20 @@ def _main(args) -> int:
 
     done = [0]
 
-    def progress(i, outcome) -> None:
+    progress.total = len(runs)
+    progress.set_postfix_str("starting the workers")
+
+    def on_done(i, outcome) -> None:
         done[0] += 1
+        progress.set_postfix_str("")
+        progress.update(1)
         if args.quiet:
             return
         run, setting = runs[i], plan[i][2]
         what = f"baseline {','.join(run.params)}" if setting is None else setting.label()
         state = getattr(outcome, "error", None) or getattr(outcome, "message", None)
-        print(f"{PROG}: [{done[0]}/{len(runs)}] {run.bag}, {what}: "
-              + (f"FAILED: {state}" if state else "ok"), file=sys.stderr)
+        say(progress, f"{PROG}: [{done[0]}/{len(runs)}] {run.bag}, {what}: "
+            + (f"FAILED: {state}" if state else "ok"))
 
     t0 = time.perf_counter()
     try:
@@ -180,9 +202,9 @@ def _main(args) -> int:
             except OSError as err:
                 return _fail(1, f"cannot create {out}: {err}")
             if not args.quiet:
-                print(f"{PROG}: {len(runs)} run(s) on {engine.description}", file=sys.stderr)
+                say(progress, f"{PROG}: {len(runs)} run(s) on {engine.description}")
             outcomes = engine.map(execute, arglists, costs=[costs[r.bag] for r in runs],
-                                  on_done=progress)
+                                  on_done=on_done)
             description = engine.description
     except EngineError as err:
         return _fail(1, str(err))
@@ -194,6 +216,7 @@ def _main(args) -> int:
         if isinstance(outcome, Lost):
             outcome = Outcome(run.index, error=outcome.message, kind=RUNTIME)
         rows.append(results.make_row(run, setting, outcome, axes))
+    progress.close()
     text = results.summary(rows, len(settings), description, wall, args.tolerance)
     try:
         results.write_csv(out / "results.csv", rows, axes)

@@ -97,6 +97,19 @@ def _context():
     return multiprocessing.get_context("spawn")
 
 
+def prestart(workers: int | None, scheduler: str | None = None) -> None:
+    """Start the forkserver of the local worker processes now, so that it imports
+    :data:`PRELOAD` while this process still imports and plans (both pay the same imports:
+    done one after the other they were the start-up of a small sweep).  Nothing for one
+    worker, a cluster, or a platform without forkserver."""
+    if scheduler is not None or (workers or default_workers()) <= 1:
+        return
+    if "forkserver" in multiprocessing.get_all_start_methods():
+        from multiprocessing import forkserver
+        _context()
+        forkserver.ensure_running()
+
+
 def _missing(paths: Sequence[str]) -> list[str]:
     """The paths this process cannot see (run on every Dask worker: a worker without fto_ros
     cannot even load this function)."""

@@ -7,8 +7,10 @@
 - ``pareto.png``: convergence time against score, one panel per bag (with more than
   MAX_PANELS bags one panel of each setting's means over the bags, for the settings judged
   on every bag); the Pareto front (the settings no other one beats on both) joined and
-  labelled, the baselines as stars; a run that never got below the tolerance sits on the
-  "never" line at the right.
+  drawn; every point labelled with its setting (the front's only, with more than
+  MAX_LABELS), the baselines as stars named by their tuning file; a run that never got
+  below the tolerance is drawn apart, an open triangle in a "never" column right of the
+  time axis (alone when no run converged), never at a made-up time.
 """
 from __future__ import annotations
 
@@ -111,34 +113,73 @@ def error_vs_parameter(path: Path, axis: Axis, rows: Sequence[dict]) -> Path:
     return path
 
 
+def baseline_name(params: str) -> str:
+    """A baseline's legend name: its tuning file's stem (the last params file), not the
+    comma-separated file list."""
+    return Path(params.split(",")[-1].strip()).stem or params
+
+
 def _pareto_panel(ax, points: Sequence[tuple[str, float, float]],
                   baselines: Sequence[tuple[str, float, float]], title: str) -> None:
-    """One panel: (label, convergence time, score) points, their front, the baselines."""
+    """One panel: (label, convergence time, score) points, their front, the baselines.  Runs
+    that never got below the tolerance are drawn apart, in a 'never' column right of the
+    time axis (or alone, when none converged), with their own marker."""
     finite = [c for _, c, _ in (*points, *baselines) if math.isfinite(c)]
-    never_x = 1.15 * max(finite) if finite and max(finite) > 0 else 1.0
+    t_max = max(finite, default=0.0)
+    never_x = 1.2 * t_max if t_max > 0 else 1.0
 
     def x_of(c):
         return c if math.isfinite(c) else never_x
 
-    ax.scatter([x_of(c) for _, c, _ in points], [e for _, _, e in points], s=16, color="0.6",
-               label="setting")
-    front = [points[i] for i in pareto_front([(c, e) for _, c, e in points])]
+    done = [p for p in points if math.isfinite(p[1])]
+    never = [p for p in points if not math.isfinite(p[1])]
+    ax.scatter([c for _, c, _ in done], [e for _, _, e in done], s=18, color="0.55",
+               label=f"setting ({len(done)})" if done else None)
+    ax.scatter([never_x] * len(never), [e for _, _, e in never], s=26, marker="v",
+               facecolors="none", edgecolors="tab:red",
+               label=f"setting, never below the tolerance ({len(never)})" if never else None)
+    front = [done[i] for i in pareto_front([(c, e) for _, c, e in done])]
     if front:
-        ax.plot([x_of(c) for _, c, _ in front], [e for _, _, e in front], "-o", color="tab:blue",
+        ax.plot([c for _, c, _ in front], [e for _, _, e in front], "-o", color="tab:blue",
                 drawstyle="steps-post", markersize=5, label="Pareto front")
-        for label, c, e in front[:MAX_LABELS]:
-            ax.annotate(label, (x_of(c), e), fontsize=6, xytext=(4, 4), textcoords="offset points")
+    named = list(points) if len(points) <= MAX_LABELS else front[:MAX_LABELS]
     for k, (label, c, e) in enumerate(baselines):
         ax.scatter([x_of(c)], [e], marker="*", s=120, color=f"C{(k + 1) % 10}",
-                   edgecolors="black", linewidths=0.5, zorder=5, label=f"baseline {label}")
-    if len(finite) < len(points) + len(baselines):
-        ax.axvline(never_x, color="tab:red", linestyle=":", linewidth=1.0)
-        ax.text(never_x, 0.98, " never", transform=ax.get_xaxis_transform(), color="tab:red",
-                fontsize=7, va="top")
-    _positive_log(ax, "y", [e for _, _, e in (*points, *baselines)])
+                   edgecolors="black", linewidths=0.5, zorder=5,
+                   label=f"baseline {baseline_name(label)}"
+                   + ("" if math.isfinite(c) else " (never below the tolerance)"))
+    some_never = len(finite) < len(points) + len(baselines)
+    ax.set_xlim(0.0, (1.3 * t_max if t_max > 0 else 2.0) if some_never
+                else 1.1 * t_max if t_max > 0 else 1.0)
+    if some_never:
+        if finite:
+            ax.axvline(1.1 * t_max, color="tab:red", linestyle=":", linewidth=1.0)
+            ticks = [t for t in ax.get_xticks() if 0 <= t <= t_max * (1 + 1e-9)]
+            ax.set_xticks(ticks + [never_x], [f"{t:g}" for t in ticks] + ["never"])
+        else:
+            ax.set_xticks([never_x], ["never"])
+    scores = [e for _, _, e in (*points, *baselines)]
+    _positive_log(ax, "y", scores)
+    if scores and ax.get_yscale() == "linear":
+        lo, hi = min(scores), max(scores)
+        pad = max(0.1 * (hi - lo), 0.1 * max(abs(lo), abs(hi)), 1e-12)
+        ax.set_ylim(lo - pad, hi + pad)
+    _annotate(ax, [(label, x_of(c), e) for label, c, e in named])
     ax.set_title(title + ("" if points else ": no setting ran with ground truth"), fontsize=8)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=6, loc="best")
+
+
+def _annotate(ax, named: Sequence[tuple[str, float, float]]) -> None:
+    """Label every point; labels of points drawn within a few pixels of each other are
+    stacked instead of printed over each other."""
+    placed: list[tuple[float, float]] = []
+    for label, x, y in sorted(named, key=lambda p: (p[2], p[1])):
+        px, py = ax.transData.transform((x, y))
+        k = sum(1 for qx, qy in placed if abs(qx - px) < 40 and abs(qy - py) < 8)
+        placed.append((px, py))
+        ax.annotate(label, (x, y), fontsize=6, xytext=(4, 4 + 8 * k), textcoords="offset points",
+                    arrowprops=dict(arrowstyle="-", color="0.7", linewidth=0.5) if k else None)
 
 
 def pareto(path: Path, rows: Sequence[dict]) -> Path:

@@ -48,6 +48,7 @@ import warnings
 import numpy as np
 import sympy
 
+from ...core.errors import ConfigNote
 from ...core.expressions import NamedFunction, compile_exprs, parse
 from ...core.model_code import ModelFunction
 from .. import kernel as K
@@ -202,7 +203,7 @@ class GlobalNormObserver(KernelObserver):
             msg = "; ".join(soft)
             if cfg["conditions"] == "refuse":
                 raise ConfigError(name, msg + f" (set {P}conditions: warn to run anyway)")
-            warnings.warn(f"{name}: {msg}", stacklevel=3)
+            warnings.warn(f"{name}: {msg}", ConfigNote, stacklevel=3)
             self.warnings = soft
 
     def _build(self, outs, wsym, xnames) -> None:

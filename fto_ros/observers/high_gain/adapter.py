@@ -77,7 +77,13 @@ class HighGainObserver(KernelObserver):
                               f"(roots {np.round(roots, 4).tolist()})")
         L = cfg["L"]
         self.L = L
-        self.gains = [alpha[i] * L ** (i + 1) for i in range(m)]
+        try:
+            self.gains = [alpha[i] * L ** (i + 1) for i in range(m)]
+        except OverflowError:
+            self.gains = [math.inf]
+        if not all(math.isfinite(g) for g in self.gains):
+            raise ConfigError(P + "L", f"the gains alpha_i L^(i+1) overflow a double at L = {L:g} "
+                              f"(n = {m}): use a smaller L")
         self.M = cfg["saturation"]
         self.on_estimate = cfg["model_input"] == "estimate"
         self.quadratic = cfg["output_hold"] == "quadratic"

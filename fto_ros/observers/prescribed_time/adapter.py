@@ -74,9 +74,9 @@ from ...core.step_cache import cache_floats, cache_init
 from .. import kernel as K
 from ..base import ConfigError, KernelObserver, Param, matrix
 from . import kernel, layout, windows
-from .design import (GUARD_DEFAULT, GUARD_FROM_ORDER, MAX_M, MAX_ORDER, bandwidth_factor,
-                     c_matrix, gain_coefficients, hurwitz_roots, inverse_unit_lower,
-                     is_hurwitz, mu_at_gain, p_bar)
+from .design import (GUARD_DEFAULT, GUARD_FROM_ORDER, MAX_M, MAX_ORDER, MAX_T,
+                     bandwidth_factor, c_matrix, gain_coefficients, hurwitz_roots,
+                     inverse_unit_lower, is_hurwitz, mu_at_gain, p_bar)
 
 P = "prescribed_time."
 #: entries of each step-size cache (model step, E_bar, after the window)
@@ -161,6 +161,9 @@ class PrescribedTimeObserver(KernelObserver):
         T = cfg["T"]
         if T is None or not T > 0:
             raise ConfigError(P + "T", f"must be > 0 (it is the convergence time), got {T}")
+        if not STEP_QUANTUM <= T <= MAX_T:
+            raise ConfigError(P + "T", f"must be between {STEP_QUANTUM:g} s (the runner's time "
+                              f"quantum) and {MAX_T:g} s, got {T:g}")
         m = cfg["m"]
         l = cfg["l"]
         if l is None or len(l) != n:

@@ -16,6 +16,9 @@ import numpy as np
 #: far below 2^53 and double range there; tested up to n = 10, m = 20)
 MAX_ORDER = 10
 MAX_M = 20
+#: the longest prescribed time (s) accepted: beyond ~1e10 s the window's model time no
+#: longer counts whole microseconds exactly in a double (2^53 us)
+MAX_T = 1e9
 #: order from which the sampling guard is on by default, and its default value
 GUARD_FROM_ORDER = 5
 GUARD_DEFAULT = 0.1

@@ -28,8 +28,9 @@ eta^(1,n), explicit on G) and its stiff finite-time part d(eta~)/dt = -mu |eta~|
 sign(eta~) (eta and u_e frozen at the new sample), which is integrated by backward Euler:
 eta~+ = soft-threshold(eta~, tau), tau = h mu |eta~+|^alpha (a scalar root, no
 chattering, unconditionally stable, eta~ = 0 is an exact equilibrium), and mapped back
-to x_hat by one Newton step with J at the predicted point.  Transactional: the
-differentiators' states are snapshotted and restored when a sample is rejected.
+to x_hat by one Newton step with J at the predicted point.  The per-sample step is the
+compiled kernel (observers/newton_inversion/kernel.py), transactional: a rejected sample
+leaves every state, the differentiators' included, untouched.
 
 No guaranteed time is published (the base class's inf): Theorem 2 / Corollary 1 make the
 convergence time finite, but T* depends on constants (M, N, S) that are not computable
@@ -41,100 +42,32 @@ import math
 
 import numpy as np
 
-from ..core.differentiator import SCHEMES, Differentiator, recursive_to_nonrecursive
-from ..core.discretize import MAX_SUBSTEPS, ExactStepper
-from ..core.symbolic_model import SymbolicModel
-from .base import ConfigError, Observer, Param, SampleRejected
+from ...core.differentiator import SCHEMES, Differentiator, recursive_to_nonrecursive
+from ...core.discretize import MAX_SUBSTEPS
+from ...core.layout import Layout
+from ...core.step_cache import cache_floats, cache_init
+from ...core.symbolic_model import SymbolicModel
+from .. import kernel as KP
+from ..base import ConfigError, KernelObserver, Param
+from . import kernel as K
+from . import numerics
 
 P = "newton_inversion."
 
 
 # ----------------------------------------------------------------------------- numerics
-def implicit_flow(e: list[float], c: float, alpha: float) -> list[float]:
-    """Backward-Euler step of e' = -mu |e|_2^alpha sign(e) (entry-wise sign), c = h mu.
-
-    e+ = sign(e) max(|e| - tau, 0) with tau = c |e+|_2^alpha: the unique root of the
-    increasing phi(tau) = tau - c R(tau)^alpha, R(tau) = |(|e| - tau)_+|_2, on
-    [0, min(c |e|^alpha, max|e|)] (safeguarded Newton).
-    """
-    a = [abs(v) for v in e]
-    amax = max(a)
-    if amax == 0.0:
-        return [0.0] * len(e)
-
-    def R(tau):
-        s = 0.0
-        s1 = 0.0
-        for ai in a:
-            d = ai - tau
-            if d > 0.0:
-                s += d * d
-                s1 += d
-        return math.sqrt(s), s1
-
-    r0, _ = R(0.0)
-    hi = min(c * r0 ** alpha, amax)
-    # root within 1e-12 of amax: e+ is zero to 1e-12 relative, return it exactly
-    t_test = amax * (1.0 - 1e-12)
-    if t_test - c * R(t_test)[0] ** alpha <= 0.0:
-        return [0.0] * len(e)
-    hi = min(hi, t_test)
-    lo = 0.0
-    tau = hi
-    for _ in range(60):
-        r, s1 = R(tau)
-        if r <= 0.0:
-            phi, dphi = tau, math.inf
-        else:
-            phi = tau - c * r ** alpha
-            dphi = 1.0 + c * alpha * r ** (alpha - 2.0) * s1
-        if phi > 0.0:
-            hi = tau
-        else:
-            lo = tau
-        if abs(phi) <= 1e-15 * max(tau, 1e-300) or hi - lo <= 1e-15 * hi:
-            break
-        nxt = tau - phi / dphi if dphi < math.inf else 0.5 * (lo + hi)
-        if not lo < nxt < hi:
-            nxt = 0.5 * (lo + hi)
-        tau = nxt
-    return [math.copysign(max(ai - tau, 0.0), v) for ai, v in zip(a, e)]
-
-
-def solve(J: tuple | list, b: list[float], n: int) -> list[float] | None:
-    """J (row-major, n x n) \\ b; closed form for n <= 3, numpy otherwise; None if singular."""
-    if n == 1:
-        d = J[0]
-        return None if d == 0.0 else [b[0] / d]
-    if n == 2:
-        a, bb, c, d = J
-        det = a * d - bb * c
-        scale = (abs(a) + abs(bb)) * (abs(c) + abs(d))
-        if not abs(det) > 1e-13 * scale:
-            return None
-        return [(d * b[0] - bb * b[1]) / det, (a * b[1] - c * b[0]) / det]
-    if n == 3:
-        a, bb, c, d, e, f, g, hh, i = J
-        A = e * i - f * hh
-        B = f * g - d * i
-        C = d * hh - e * g
-        det = a * A + bb * B + c * C
-        scale = ((abs(a) + abs(bb) + abs(c)) * (abs(d) + abs(e) + abs(f))
-                 * (abs(g) + abs(hh) + abs(i)))
-        if not abs(det) > 1e-13 * scale:
-            return None
-        y0, y1, y2 = b
-        return [(A * y0 + (c * hh - bb * i) * y1 + (bb * f - c * e) * y2) / det,
-                (B * y0 + (a * i - c * g) * y1 + (c * d - a * f) * y2) / det,
-                (C * y0 + (bb * g - a * hh) * y1 + (a * e - bb * d) * y2) / det]
-    M = np.asarray(J, dtype=float).reshape(n, n)
-    if np.linalg.cond(M) > 1e13:
-        return None
-    return np.linalg.solve(M, np.asarray(b, dtype=float)).tolist()
+def implicit_flow(e, c: float, alpha: float) -> list[float]:
+    """The backward-Euler step of e' = -mu |e|_2^alpha sign(e), c = h mu (numerics.py), on a
+    sequence: the list e+."""
+    e = np.ascontiguousarray(e, dtype=float)
+    out = np.empty_like(e)
+    numerics.implicit_flow(e, float(c), float(alpha), out, np.empty_like(e))
+    return out.tolist()
 
 
 class LinearFilter:
-    """Q(s) = num(s)/den(s) (proper) on `channels` signals, exact first-order-hold step."""
+    """Q(s) = num(s)/den(s) (proper) on `channels` signals: the controllable canonical form
+    (A, B, C, D) the kernel steps exactly with its input first-order held."""
 
     def __init__(self, num, den, channels: int, parameter: str):
         num = [float(v) for v in num]
@@ -165,29 +98,14 @@ class LinearFilter:
             B[-1, 0] = 1.0
             C = (b[1:] - b[0] * a[1:])[::-1].reshape(1, k)
             self.A, self.B, self.C = A, B, C
-            self.stepper = ExactStepper(A, B)
             self.dc_state = -np.linalg.solve(A, B)          # state for a unit constant input
         self.dc_gain = float(np.polyval(num, 0.0) / np.polyval(den, 0.0)) if den[-1] != 0 else math.nan
 
-    def start(self, w: np.ndarray) -> np.ndarray:
-        """Filter state at rest for the constant input w (channels,)."""
-        if not self.k:
-            return np.zeros((0, self.channels))
-        return self.dc_state @ w.reshape(1, -1)
-
-    def step(self, X: np.ndarray, w0: np.ndarray, w1: np.ndarray, h: float):
-        """(new state, output at the new sample) for inputs linear from w0 to w1."""
-        if not self.k:
-            return X, self.D * w1
-        M = self.stepper.stacked(h)
-        k = self.k
-        Xn = M[:, :k] @ X + M[:, k:k + 1] @ w0.reshape(1, -1) + M[:, k + 1:] @ w1.reshape(1, -1)
-        return Xn, (self.C @ Xn).ravel() + self.D * w1
-
 
 # ----------------------------------------------------------------------------- observer
-class NewtonInversionObserver(Observer):
+class NewtonInversionObserver(KernelObserver):
     TYPE = "newton_inversion"
+    KERNEL = K
     DESCRIPTION = ("Possieri, Vidano & Novara 2020: sliding-mode differentiator + finite-time "
                    "Newton-like inversion of the observability map, in the plant's coordinates")
     HEALTH_NAME = "cond(J), condition number of the observability map's Jacobian at the estimate"
@@ -279,17 +197,17 @@ class NewtonInversionObserver(Observer):
         self.filter = (LinearFilter(cfg["filter_numerator"], cfg["filter_denominator"],
                                     order + 1, P) if has_filter else None)
         self.diff_args = self._differentiator_args(cfg, order, cfg["L"], "L", 1)
-        self.Dy = Differentiator(**self.diff_args)
+        self._dy = Differentiator(**self.diff_args)
         # input derivatives: needed up to input_orders[j] (O uses <= n-1, G one more)
         need = max(model.input_orders, default=-1)
         self.need_u = need
-        self.Du = None
+        self._du = None
         if m and not self.known_derivatives and model.uses_input_derivatives:
             q = cfg["input_order"] or n
             if q < need:
                 raise ConfigError(P + "input_order", f"the map needs input derivatives up to "
                                   f"order {need}; input_order {q} is too low")
-            self.Du = Differentiator(**self._differentiator_args(cfg, q, cfg["Z"], "Z", m))
+            self._du = Differentiator(**self._differentiator_args(cfg, q, cfg["Z"], "Z", m))
         x0 = cfg["initial_estimate"] or [0.0] * n
         if len(x0) != n:
             raise ConfigError(P + "initial_estimate", f"expected {n} values, got {len(x0)}")
@@ -299,12 +217,48 @@ class NewtonInversionObserver(Observer):
                                    box=cfg["check_box"], input_box=cfg["check_input_box"],
                                    grid=cfg["check_grid"], max_condition=self.max_condition,
                                    prefix=P)
-        self._x = list(self.x0_default)
-        self._health = math.nan
-        self._residual = math.nan
-        self._etilde = math.nan
-        self._active = False
-        self.rejections = 0
+        self._build(order + 1)
+
+    def _build(self, ne: int) -> None:
+        """The kernel's arrays (observers/newton_inversion/kernel.py has the layout)."""
+        n, m = self.n, self.model.m
+        dy, du, flt = self._dy, self._du, self.filter
+        k = flt.k if flt is not None else 0
+        c, ic = Layout(1), {}                        # c[MAX_STEP] first
+        ic[K.CX0] = c.put(self.x0_default)
+        ic[K.CPAR] = c.put([self.mu, self.alpha, self.delay])
+        ic[K.CDY] = c.put(dy.consts)
+        ic[K.CDU] = c.put(du.consts) if du is not None else 0
+        if flt is not None and k:
+            ic[K.CAF], ic[K.CBF], ic[K.CCF] = c.put(flt.A), c.put(flt.B), c.put(flt.C)
+            ic[K.CDC] = c.put(flt.dc_state)
+        else:
+            ic[K.CAF] = -1 if flt is None else c.size
+            ic[K.CBF] = ic[K.CCF] = ic[K.CDC] = c.size
+        ic[K.CDF] = c.put([flt.D if flt is not None else 0.0])
+        s = Layout(KP.HEADER)
+        s.take(n)                                      # x
+        for key, size in ((K.SJ, n * n), (K.SG, n), (K.SO, n), (K.SRAW, ne), (K.SETA, ne),
+                          (K.SXF, k * ne), (K.SACT, 1), (K.SET, 1), (K.SDY, dy.state_size),
+                          (K.SDU, du.state_size if du is not None else 0)):
+            ic[key] = s.take(size)
+        slots = 256
+        w = Layout(0)
+        ic[K.WFC], ic[K.FSLOTS] = w.take(cache_floats(slots, k * (k + 2))), slots
+        for key, size in ((K.WREJ, 1), (K.WEV, 2 * n + n * n), (K.WUE, m * (n + 1)),
+                          (K.WT, 6 * n), (K.WW, n * n), (K.WFT, k * k + k * ne),
+                          (K.WR, max(dy.scratch_size, du.scratch_size if du else 0))):
+            ic[key] = w.take(size)
+        wk = np.zeros(w.size)
+        cache_init(wk, ic[K.WFC], slots)
+        ints = [n, m, m * (n + 1), int(self.known_derivatives), int(self.ndim), ne,
+                int(du is not None), k] + [ic[key] for key in range(K.CX0, K.WR + 1)]
+        icv = KP.layout_ic(n, KP.HEADER, extra_ints=ints)
+        # differentiator sub-steps (max_step) are bounded in number
+        c.data[KP.MAX_STEP] = (self.diff_args["max_step"] * MAX_SUBSTEPS
+                               if "max_step" in self.diff_args else math.inf)
+        self._build_kernel(c.array(), icv, wk, s.size, models=(self.model.function,))
+        self._restart(None)                            # x_hat = x_hat(0) until a sample
 
     def _differentiator_args(self, cfg, order, L, Lname, channels) -> dict:
         args = dict(order=order, L=L, channels=channels, scheme=cfg["scheme"], rho=cfg["rho"])
@@ -328,171 +282,40 @@ class NewtonInversionObserver(Observer):
             raise ConfigError(P + (Lname if str(exc).startswith("L") else "scheme"), str(exc)) from None
         return args
 
-    # -- helpers ----------------------------------------------------------------------------
-    def _ue(self, u: np.ndarray, v: np.ndarray | None) -> list[float]:
-        """Flat u_e = [u_j, u_j', ..., u_j^(n)] per input from the known channels or the
-        input differentiator's estimates v (m, q+1); derivatives it does not give are 0."""
-        n, m = self.n, self.model.m
-        out = []
-        if self.known_derivatives:
-            return [float(a) for a in u]
-        for j in range(m):
-            if v is None:
-                out.append(float(u[j]))
-                out.extend([0.0] * n)
-            else:
-                row = v[j]
-                q = len(row) - 1
-                out.extend(float(row[d]) if d <= q else 0.0 for d in range(n + 1))
-        return out
-
-    # -- protocol ---------------------------------------------------------------------------
-    def _restart(self, x0_hat):
-        self._x = list(self.x0_default) if x0_hat is None else [float(a) for a in x0_hat]
-        self._health = math.nan
-        self._residual = math.nan
-        self._etilde = math.nan
-        self._active = False
+    # -- views of the kernel's state -----------------------------------------------------
+    @property
+    def Dy(self) -> Differentiator:
+        """The output differentiator, a view of its state in the observer's."""
+        return self._dy.on(self._st, int(self._ic[K.SDY]))
 
     @property
-    def max_step(self):
-        # differentiator sub-steps (max_step) are bounded in number
-        return self.diff_args["max_step"] * MAX_SUBSTEPS if "max_step" in self.diff_args else math.inf
-
-    def _first(self, y, u, gap):
-        n = self.n
-        x = list(self._x)
-        snap_u = None
-        v = None
-        if self.Du is not None:
-            snap_u = self.Du.get_state()
-            self.Du.reset(u)
-            v = self.Du.estimates
-        ue = self._ue(u, v)
-        ev = self.model.evaluate(x, ue)
-        if ev is None or not all(math.isfinite(a) for a in ev):
-            if snap_u is not None:
-                self.Du.set_state(snap_u)
-            raise SampleRejected("model_undefined_at_estimate")
-        O, J, G = ev[:n], ev[n:n + n * n], ev[n + n * n:]
-        if self.ndim:
-            self.Dy.reset([O[0]], [list(O[1:])])
-        else:
-            self.Dy.reset(y)
-        eta = self.Dy.estimates[0].copy()
-        self._xf = None
-        if self.filter is not None:
-            self._xf = self.filter.start(eta)
-        self._eta_raw = eta
-        self._eta = eta.copy()
-        if self.filter is not None and self.filter.k:
-            self._eta = (self.filter.C @ self._xf).ravel() + self.filter.D * eta
-        self._x, self._J, self._G, self._O = x, J, G, O
-        self._active = self.delay <= 0.0
-        self._etilde = math.sqrt(sum((a - b) ** 2 for a, b in zip(eta[:n], O))) if not self.ndim else 0.0
-        self._residual = abs(y[0] - O[0])
-        self._health = math.nan
-
-    def _step(self, s, h, y, u):
-        n = self.n
-        snap_y = self.Dy.get_state()
-        snap_u = self.Du.get_state() if self.Du is not None else None
-        try:
-            try:
-                eta_raw = self.Dy.update(h, y)[0].copy()
-                v = self.Du.update(h, u) if self.Du is not None else None
-            except ValueError:
-                raise SampleRejected("non_finite_differentiator") from None
-            ue = self._ue(u, v)
-            if self.filter is not None:
-                xf, eta = self.filter.step(self._xf, self._eta_raw, eta_raw, h)
-            else:
-                xf, eta = None, eta_raw
-            x = self._x
-            active = s >= self.delay - 1e-12
-            if not active:
-                ev = self.model.evaluate(x, ue)
-                if ev is None:
-                    raise SampleRejected("model_undefined_at_estimate")
-                x_new = x
-                O = ev[:n]
-                et = 0.0 if self.ndim else math.sqrt(sum((eta[i] - O[i]) ** 2 for i in range(n)))
-            else:
-                # 1. feed-forward: trapezoid on eta^(1,n) (filtered) or the increment of
-                #    xi (n_dimensional), explicit on G, with J from the last evaluation
-                Gp = self._G
-                if self.ndim:
-                    ff = [eta[i] - self._eta[i] - h * Gp[i] for i in range(n)]
-                else:
-                    ff = [0.5 * h * (self._eta[i + 1] + eta[i + 1]) - h * Gp[i] for i in range(n)]
-                dx = solve(self._J, ff, n)
-                if dx is None:
-                    raise SampleRejected("singular_jacobian")
-                xp = [a + b for a, b in zip(x, dx)]
-                # 2. stiff part at the new sample: backward Euler on eta~, one Newton step
-                ev = self.model.evaluate(xp, ue)
-                if ev is None:
-                    raise SampleRejected("model_undefined_at_estimate")
-                O = ev[:n]
-                e_pred = [eta[i] - O[i] for i in range(n)]
-                et = math.sqrt(sum(a * a for a in e_pred))
-                if self.ndim:
-                    corr = e_pred
-                else:
-                    e_new = implicit_flow(e_pred, h * self.mu, self.alpha)
-                    corr = [a - b for a, b in zip(e_pred, e_new)]
-                dx2 = solve(ev[n:n + n * n], corr, n)
-                if dx2 is None:
-                    raise SampleRejected("singular_jacobian")
-                x_new = [a + b for a, b in zip(xp, dx2)]
-            J, G = ev[n:n + n * n], ev[n + n * n:]
-            if not (math.isfinite(sum(x_new)) and math.isfinite(sum(ev))
-                    and np.all(np.isfinite(eta)) and (xf is None or np.all(np.isfinite(xf)))):
-                raise SampleRejected("non_finite_estimate")
-        except SampleRejected:
-            self.Dy.set_state(snap_y)
-            if snap_u is not None:
-                self.Du.set_state(snap_u)
-            self.rejections += 1
-            raise
-        # commit
-        self._x, self._J, self._G, self._O = x_new, J, G, O
-        self._eta_raw, self._eta, self._xf = eta_raw, eta, xf
-        self._active, self._etilde = active, et
-        self._residual = abs(y[0] - O[0])
-        self._health = math.nan          # cond(J) computed on demand
-
-    # -- outputs ----------------------------------------------------------------------------
-    @property
-    def estimate(self):
-        return np.array(self._x, dtype=float)
-
-    @property
-    def health(self):
-        if not self.started:
-            return math.nan
-        if math.isnan(self._health):
-            J = np.asarray(self._J, dtype=float).reshape(self.n, self.n)
-            self._health = float(np.linalg.cond(J))
-        return self._health
+    def Du(self) -> Differentiator | None:
+        """The input differentiator (Remark 5; None: not needed), a view of its state."""
+        return None if self._du is None else self._du.on(self._st, int(self._ic[K.SDU]))
 
     @property
     def eta(self) -> np.ndarray:
         """The derivative estimates used by the inversion (filtered when a filter is set)."""
-        return np.array(self._eta, dtype=float)
+        o = int(self._ic[K.SETA])
+        return self._st[o:o + int(self._ic[K.NE])].copy()
 
     @property
     def inversion_active(self) -> bool:
-        return self._active
+        return bool(self._st[int(self._ic[K.SACT])])
+
+    @property
+    def rejections(self) -> int:
+        """Samples the observer itself rejected (model undefined, singular J, ...)."""
+        return int(self._wk[int(self._ic[K.WREJ])])
 
     def diagnostics(self):
         s = self.startup
         out = {
             "variant": "n_dimensional (21)" if self.ndim else
                        ("filtered (11) + Q(s) (Remark 6)" if self.filter is not None else "(11)"),
-            "inversion active": "yes" if self._active else f"no (delay {self.delay:g} s)",
+            "inversion active": "yes" if self.inversion_active else f"no (delay {self.delay:g} s)",
             "cond(J)": f"{self.health:.4g}",
-            "|eta_tilde|": f"{self._etilde:.3g}",
+            "|eta_tilde|": f"{self._st[int(self._ic[K.SET])]:.3g}",
             "differentiator residual |y - eta_0|": f"{float(self.Dy.residual[0]):.3g}"
             if self.started else "n/a",
             "input derivatives": "known (input channels)" if self.known_derivatives else

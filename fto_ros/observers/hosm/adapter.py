@@ -29,7 +29,9 @@ Discretisation (sample-driven, any step):
 - the differentiator is core/differentiator.py (eigenvalue-matched by default: no chattering,
   keeps the h^(N-i) accuracy orders);
 - omega2 is integrated exactly with omega1 linear between samples.
-Updates are transactional: the differentiators are restored when a later part fails.
+The per-sample step is the compiled kernel (observers/hosm/kernel.py): it writes a candidate
+state that is committed only when every value is finite, so a rejected sample leaves the
+state, the differentiators' included, untouched.
 """
 from __future__ import annotations
 
@@ -37,15 +39,19 @@ import math
 
 import numpy as np
 
-from ..core import differentiator as red
-from ..core.discretize import MAX_SUBSTEPS, ExactStepper, StepCache
-from ..core.expressions import VectorFunction
-from ..core.linear import place_observer_poles
-from ..core.structure import StructureError, analyse, relative_degree
-from .base import ConfigError, Observer, Param, SampleRejected, matrix
+from ...core import differentiator as red
+from ...core.discretize import MAX_SUBSTEPS
+from ...core.expressions import VectorFunction
+from ...core.layout import Layout
+from ...core.linear import place_observer_poles
+from ...core.model_code import ModelFunction
+from ...core.step_cache import cache_floats, cache_init
+from ...core.structure import StructureError, analyse, relative_degree
+from .. import kernel as KP
+from ..base import ConfigError, KernelObserver, Param, matrix
+from . import kernel as K
 
 P = "hosm."
-_CACHE = 256
 
 
 def _fmt(z: np.ndarray) -> str:
@@ -59,8 +65,9 @@ def _fmt(z: np.ndarray) -> str:
     return ", ".join(out)
 
 
-class HosmObserver(Observer):
+class HosmObserver(KernelObserver):
     TYPE = "hosm"
+    KERNEL = K
     DESCRIPTION = ("Fridman, Levant & Davila 2007: high-order sliding-mode observer, exact in finite "
                    "time under a bounded unknown input, which it identifies")
     HEALTH_NAME = "largest differentiator residual |y_i - c_i z - v_i1|"
@@ -81,9 +88,14 @@ class HosmObserver(Observer):
               "Hurwitz (empty: from 'poles')", read_only=False),
         Param("poles", "double_array", [], "n distinct negative real poles of A - L C (used when L is "
               "empty; needs (A, C) observable)", read_only=False),
-        Param("M", "double_array", None, "differentiator gain M per output (1 value: all outputs): a "
-              "bound on the highest differentiated derivative; the paper needs M > |d| zeta+ "
-              "(states) or M > |d| sup|zeta^(k+1)| (identification)", min=1e-12, read_only=False),
+        Param("M", "double_array", None, "per output (1 value: all outputs), a bound on the "
+              "N-th time derivative of the output error e_i = y_i - c_i z that differentiator i "
+              "differentiates, in y_i's units per s^N, N = r_i (states only) or r_i + k + 1 "
+              "(identification): for a joint angle (rad) driven by an unknown torque (r = 2), "
+              "rad/s^2 (the acceleration the unknown input causes) or, with k = 0, rad/s^3 (how "
+              "fast that acceleration changes). The paper needs M > |d| zeta+ or M > |d| "
+              "sup|zeta^(k+1)|; fto-design --suggest-from BAG measures it on a recording",
+              min=1e-12, read_only=False),
         Param("identify_unknown_input", "bool", True, "estimate zeta too (eq. 26-29, 39-40, 56): the "
               "differentiator order becomes r_i + k instead of r_i - 1", read_only=False),
         Param("smoothness_order", "int", 0, "k of Assumption 3.3: zeta^(k) is Lipschitz (its "
@@ -168,31 +180,21 @@ class HosmObserver(Observer):
         if alphas and len(alphas) < max(self.orders) + 1:
             raise ConfigError(P + "differentiator_gains", f"need at least {max(self.orders) + 1} "
                               f"values alpha_1..alpha_N, got {len(alphas)}")
-        self.diffs: list = []
+        self._diffs: list = []
         for i, order in enumerate(self.orders):
             if order == 0:
-                self.diffs.append(None)      # r_i = 1, states only: v_i1 = y_i - c_i z itself
+                self._diffs.append(None)     # r_i = 1, states only: v_i1 = y_i - c_i z itself
                 continue
             gains = (red.recursive_to_nonrecursive(alphas[:order + 1]) if alphas else None)
             try:
-                self.diffs.append(red.Differentiator(
+                self._diffs.append(red.Differentiator(
                     order, float(M[i]), channels=1, scheme=scheme, rho=cfg["differentiator_rho"],
                     gains=gains, filter_order=cfg["differentiator_filter_order"],
                     max_step=cfg["differentiator_max_step"] or None))
             except ValueError as exc:
                 raise ConfigError(P + _param_of(str(exc)), str(exc)) from None
         self.scheme = scheme
-
-        # Luenberger part: z' = A_lc... no: z' = A z + B u + F + L w, w = y - C z FOH, implicit in z
-        self.stepper = ExactStepper(A, np.hstack([B, np.eye(n), L]))
-        self._zcache = StepCache(self._step_matrix)
-        nz = n - st.r_total
-        self.n_zero = nz
-        self.zstepper = ExactStepper(st.A22, st.A21) if nz else None
-        self.Tinv1 = st.Tinv[:, :st.r_total].copy()
-        self.Tinv2 = st.Tinv[:, st.r_total:].copy()
-        self.Qinv = np.linalg.inv(st.Q)
-        self.G = st.G
+        self.n_zero = n - st.r_total
         self.foh_input = cfg["input_hold"] == "foh"
         self.state_names = cfg["state_names"] or [f"x{i}" for i in range(n)]
         if len(self.state_names) != n:
@@ -201,16 +203,57 @@ class HosmObserver(Observer):
         if len(self.unknown_input_names) != p:
             raise ConfigError(P + "unknown_input_names", f"expected {p} names, got "
                               f"{len(self.unknown_input_names)}")
-        self._siso = p == 1
-        self._Fzero = self.F.is_zero
+        self._build()
+
+    def _build(self) -> None:
+        """The kernel's arrays (observers/hosm/kernel.py has the layout)."""
+        n, p, m = self.n_states, self.n_outputs, self.n_inputs
+        st, nz, r = self.structure, self.n_zero, self.structure.r_total
+        fzero = self.F.is_zero
         # F(y, u) without u: one evaluation per sample serves both ends of the step
-        self._F_has_u = any(e.free_symbols & set(self.F.u_syms) for e in self.F.exprs)
-        self._zeros_n = np.zeros(n)
-        self._vbar = np.zeros(p)
-        self._Cpinv = np.linalg.pinv(C)
-        self._x0 = None
-        self._x_hat = np.zeros(n)
-        self._zeta = np.zeros(p) if self.identify else None
+        f_has_u = any(e.free_symbols & set(self.F.u_syms) for e in self.F.exprs)
+        ncol = n + 2 * (m + p) + (0 if fzero else 2 * n)
+        c, ic = Layout(1), {}                       # c[MAX_STEP] first
+        for key, mat in ((K.CA, self.A), (K.CBW, np.hstack([self.B, np.eye(n), self.L])),
+                         (K.CC, self.C), (K.CCPINV, np.linalg.pinv(self.C)),
+                         (K.CTINV1, st.Tinv[:, :r]), (K.CTINV2, st.Tinv[:, r:]),
+                         (K.CQINV, np.linalg.inv(st.Q)), (K.CG, st.G), (K.CA22, st.A22),
+                         (K.CA21, st.A21)):
+            ic[key] = c.put(mat)
+        s = Layout(KP.HEADER)
+        s.take(n + (p if self.identify else 0))     # x_hat, zeta
+        for key, size in ((K.SZ, n), (K.SYT, p), (K.SY, p), (K.SU, m), (K.SF, n),
+                          (K.SOM1, r), (K.SOM2, nz), (K.SHASX0, 1), (K.SX0, n)):
+            ic[key] = s.take(size)
+        per_out, scratch = [], 0
+        for i, d in enumerate(self._diffs):
+            blk = st.blocks[i]
+            if d is None:
+                per_out += [0, blk.start, blk.stop - blk.start, 0, 0]
+                continue
+            per_out += [d.order, blk.start, blk.stop - blk.start, c.put(d.consts),
+                        s.take(d.state_size)]
+            scratch = max(scratch, d.scratch_size)
+        slots = 256
+        w = Layout(0)
+        ic[K.WK], ic[K.KSLOTS] = w.take(cache_floats(slots, 1 + n * ncol)), slots
+        ic[K.WZ], ic[K.ZSLOTS] = w.take(cache_floats(slots, nz * (nz + 2 * r))), slots
+        for key, size in ((K.WT1, n), (K.WTH, r + nz), (K.WGT, p), (K.WVB, p), (K.WF1, n),
+                          (K.WV, ncol)):
+            ic[key] = w.take(size)
+        ic[K.WR] = w.take(max(scratch, 2 * (nz + 2 * r)))
+        wk = np.zeros(w.size)
+        cache_init(wk, ic[K.WK], slots)
+        cache_init(wk, ic[K.WZ], slots)
+        ints = [n, p, m, r, nz, int(self.identify), int(self.foh_input), int(fzero),
+                int(f_has_u), ncol] + [ic[key] for key in range(K.CA, K.PER_OUT)] + [K.PER_OUT + 1]
+        icv = KP.layout_ic(n, KP.HEADER, n_ui=p if self.identify else 0, ui=KP.HEADER + n,
+                           extra_ints=ints + per_out)
+        # differentiator sub-steps (differentiator_max_step) are bounded in number
+        ms = [d.max_step for d in self._diffs if d is not None and d.max_step]
+        c.data[KP.MAX_STEP] = min(ms) * MAX_SUBSTEPS if ms else math.inf
+        model = ModelFunction(self.F.exprs, [[], self.F.y_syms, self.F.u_syms])
+        self._build_kernel(c.array(), icv, wk, s.size, models=(model,))
 
     # -- checks -----------------------------------------------------------------------------
     def _check_M(self, cfg) -> None:
@@ -231,171 +274,51 @@ class HosmObserver(Observer):
         what = "sup|zeta^(k+1)|" if self.identify else "zeta+"
         for i in range(p):
             if not self.M[i] > need[i]:
+                N = self.bounded_orders[i]
                 raise ConfigError(P + "M", f"M[{i}] = {self.M[i]:g} is too small: the paper needs "
                                   f"M > sum_j |d_ij| {what}_j = {need[i]:.6g} for output {i} "
-                                  f"(d = c_i A^(r_i-1) D)")
+                                  f"(d = c_i A^(r_i-1) D); M[{i}] bounds d^{N}/dt^{N} of output "
+                                  f"{i}'s error y{i} - c{i} z, in y{i}'s units per s^{N} "
+                                  f"(rad/s^{N} for a joint angle)")
         self.M_check = "; ".join(f"M[{i}] = {self.M[i]:g} > {need[i]:.4g} = |d| {what}"
                                  for i in range(p))
 
+    # -- views of the kernel's state and constants -------------------------------------------
     @property
-    def max_step(self):
-        # differentiator sub-steps (differentiator_max_step) are bounded in number
-        ms = [d.max_step for d in self.diffs if d is not None and d.max_step]
-        return min(ms) * MAX_SUBSTEPS if ms else math.inf
-
-    def _step_matrix(self, h: float) -> np.ndarray:
-        """K_h with z_new = K_h @ [z, u0, F0, w0, u1, F1, y1] (error FOH, solved for z_new);
-        None when the implicit step is singular at this h."""
-        n, m, p = self.n_states, self.n_inputs, self.n_outputs
-        S = self.stepper.stacked(h)               # [Phi | G0 | G1], w = [u, F, ytilde]
-        w = m + n + p
-        Phi, G0, G1 = S[:, :n], S[:, n:n + w], S[:, n + w:]
-        G1L = G1[:, m + n:]
-        Mimp = np.eye(n) + G1L @ self.C
-        if np.linalg.cond(Mimp) > 1e12:
-            return None
-        if self.F.is_zero:      # no F columns: [z, u0, w0, u1, y1]
-            blocks = [Phi, G0[:, :m], G0[:, m + n:], G1[:, :m], G1L]
-        else:
-            blocks = [Phi, G0, G1[:, :m + n], G1L]
-        return np.linalg.solve(Mimp, np.hstack(blocks))
-
-    # -- protocol ---------------------------------------------------------------------------
-    def _restart(self, x0_hat):
-        # no initial estimate: z starts at the least-norm state consistent with the first
-        # sample (z0 = C^+ y0, set in _first), so the output error starts at zero
-        self._x0 = x0_hat
-
-    def _gather(self, ytil, v_list):
-        """(omega1, v_bar) from the output error and the differentiators' estimates."""
-        st = self.structure
-        om1 = np.empty(st.r_total)
-        vbar = self._vbar
-        for i, blk in enumerate(st.blocks):
-            v = v_list[i]
-            ri = blk.stop - blk.start
-            if v is None:
-                om1[blk] = ytil[i]
-            else:
-                om1[blk] = v[:ri]
-                if self.identify:
-                    vbar[i] = v[ri]
-        return om1, vbar
-
-    def _finish(self, z, om1, vbar, omega2):
-        """(x_hat, zeta_hat) from z, omega1, v_bar and omega2."""
-        x_hat = z + self.Tinv1 @ om1
-        if self.n_zero:
-            x_hat += self.Tinv2 @ omega2
-            theta = np.concatenate((om1, omega2))
-        else:
-            theta = om1
-        zeta = self.Qinv @ (vbar - self.G @ theta) if self.identify else None
-        return x_hat, zeta
-
-    def _model_term(self, y, u):
-        if self._Fzero:
-            return self._zeros_n
-        return np.array(self.F(y, u), dtype=float)
-
-    def _step(self, s, h, y, u):
-        u_end = u if self.foh_input else self._u
-        F1 = self._model_term(y, u_end)
-        K = self._zcache(h)
-        if K is None:
-            raise SampleRejected("singular_step")
-        if self._Fzero:
-            z = K @ np.concatenate((self._z, self._u, self._ytil, u_end, y))
-        else:
-            z = K @ np.concatenate((self._z, self._u, self._F, self._ytil, u_end, F1, y))
-        ytil = y - self.C @ z
-        diffs = self.diffs
-        if self._siso:
-            d = diffs[0]
-            if d is None:
-                v_list = (None,)
-                saved = None
-            else:
-                saved = d.get_state()
-                try:
-                    v_list = (d.update(h, ytil)[0],)
-                except ValueError:
-                    d.set_state(saved)
-                    raise SampleRejected("non_finite_estimate") from None
-        else:
-            saved = [None if d is None else d.get_state() for d in diffs]
-            v_list = []
-            try:
-                for i, d in enumerate(diffs):
-                    v_list.append(None if d is None else d.update(h, ytil[i:i + 1])[0])
-            except ValueError:
-                self._restore(saved)
-                raise SampleRejected("non_finite_estimate") from None
-        om1, vbar = self._gather(ytil, v_list)
-        if self.n_zero:
-            omega2 = self.zstepper.step(self._omega2, self._om1, om1, h)
-        else:
-            omega2 = self._omega2
-        x_hat, zeta = self._finish(z, om1, vbar, omega2)
-        F_now = F1 if (self.foh_input or not self._F_has_u) else self._model_term(y, u)
-        check = float(x_hat.sum()) + float(z.sum()) + float(omega2.sum()) + float(F_now.sum())
-        if zeta is not None:
-            check += float(zeta.sum())
-        if not math.isfinite(check):
-            self._restore(saved)
-            raise SampleRejected("non_finite_estimate")
-        self._y, self._u, self._F = y, u, F_now
-        self._z, self._ytil, self._om1, self._omega2 = z, ytil, om1, omega2
-        self._x_hat, self._zeta = x_hat, zeta
-
-    def _restore(self, saved) -> None:
-        if self._siso:
-            saved = [saved]
-        for d, s_ in zip(self.diffs, saved):
-            if d is not None and s_ is not None:
-                d.set_state(s_)
-
-    def _first(self, y, u, gap) -> None:
-        """The first sample after reset: z = x0_hat, differentiators start at y - C z."""
-        Fy = self._model_term(y, u)
-        if not math.isfinite(float(Fy.sum())):
-            raise SampleRejected("non_finite_model_term")
-        z = self._Cpinv @ y if self._x0 is None else self._x0.copy()
-        ytil = y - self.C @ z
-        v_list = []
-        for i, d in enumerate(self.diffs):
-            if d is None:
-                v_list.append(None)
-            else:
-                d.reset(ytil[i:i + 1])
-                v_list.append(d.estimates[0])
-        omega2 = np.zeros(self.n_zero)
-        om1, vbar = self._gather(ytil, v_list)
-        x_hat, zeta = self._finish(z, om1, vbar, omega2)
-        self._y, self._u, self._F = y, u, Fy
-        self._z, self._ytil, self._om1, self._omega2 = z, ytil, om1, omega2
-        self._x_hat, self._zeta = x_hat, zeta
-
-    # -- outputs ----------------------------------------------------------------------------
-    @property
-    def estimate(self):
-        return self._x_hat
+    def diffs(self) -> list:
+        """The differentiators (None for an output without one), as views of the state."""
+        out = []
+        for i, d in enumerate(self._diffs):
+            b = self._ic[K.PER_OUT] + K.OUT_WIDTH * i
+            out.append(None if d is None else d.on(self._st, int(self._ic[b + 4])))
+        return out
 
     @property
-    def unknown_input(self):
-        return self._zeta
+    def differentiated_signal(self) -> np.ndarray:
+        """e = y - C z at the last update: what differentiator i differentiates; its
+        ``bounded_orders[i]``-th time derivative is what M[i] bounds."""
+        n, p = self.n_states, self.n_outputs
+        o = KP.HEADER + n + (p if self.identify else 0) + n
+        return self._st[o:o + p].copy()
 
     @property
-    def output_residual(self):
-        if not self.started:
-            return float("nan")
-        r = self._y - self.C @ self._x_hat
-        return float(math.sqrt(float(r @ r)))
+    def bounded_orders(self) -> list[int]:
+        """Per output, the order of the derivative of e_i that M[i] bounds: the
+        differentiator's order + 1 (r_i, or r_i + k + 1 when identifying)."""
+        return [o + 1 for o in self.orders]
+
+    def _const(self, key: int, rows: int, cols: int) -> np.ndarray:
+        o = int(self._ic[key])
+        return self._c[o:o + rows * cols].reshape(rows, cols)
 
     @property
-    def health(self):
-        res = [float(d.residual[0]) for d in self.diffs if d is not None]
-        return max(res) if res else 0.0
+    def Tinv1(self) -> np.ndarray:
+        """The first r columns of T^-1 (a copy; assigning it changes the kernel's)."""
+        return self._const(K.CTINV1, self.n_states, self.structure.r_total).copy()
+
+    @Tinv1.setter
+    def Tinv1(self, value) -> None:
+        self._const(K.CTINV1, self.n_states, self.structure.r_total)[...] = value
 
     def diagnostics(self):
         st = self.structure
@@ -408,6 +331,8 @@ class HosmObserver(Observer):
             "structure": kind,
             "observability index n_O": st.n_observable,
             "M": ", ".join(f"{v:g}" for v in self.M),
+            "M bounds": ", ".join(f"|d^{N}/dt^{N} (y{i} - c{i} z)| (units of y{i} per s^{N})"
+                                  for i, N in enumerate(self.bounded_orders)),
             "M check": self.M_check,
             "differentiator": f"{self.scheme}, order(s) {', '.join(str(o) for o in self.orders)}",
             "differentiator residual": f"{self.health:.3g}",

@@ -1,0 +1,8 @@
+"""The single-delay observer (Mazenc & Malisoff 2022): the adapter (parameters, checks), its
+design (design.py) and the kernels of its two forms (continuous.py, sampled.py, sharing
+kernel.py)."""
+from .adapter import ContinuousSingleDelay, SampledSingleDelay, SingleDelayObserver
+from .design import design, noise_bound_constant, theorem2_mu
+
+__all__ = ["ContinuousSingleDelay", "SampledSingleDelay", "SingleDelayObserver", "design",
+           "noise_bound_constant", "theorem2_mu"]
