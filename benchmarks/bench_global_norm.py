@@ -1,4 +1,6 @@
-"""Update time of global_norm (and high_gain) per sample, in-process, vs a numpy 3x3 matvec.
+"""Update time of global_norm (and high_gain) per sample, in-process, vs a numpy 3x3 matvec:
+``Observer.update``, ``Observer.update_checked`` (the compiled kernel's entry without the
+Python-side checks of y) and ``Runner.process`` (the compiled runner), in one run.
 
     cd /work/main && PYTHONPATH=. OPENBLAS_NUM_THREADS=1 python benchmarks/bench_global_norm.py
 
@@ -25,6 +27,7 @@ from bench_update import matvec_baseline, time_calls  # noqa: E402
 from fto_ros.observers.base import resolve  # noqa: E402
 from fto_ros.observers.global_norm import GlobalNormObserver  # noqa: E402
 from fto_ros.observers.high_gain import HighGainObserver  # noqa: E402
+from fto_ros.runner import Runner  # noqa: E402
 
 
 def stream(rhs, x0, n):
@@ -34,18 +37,27 @@ def stream(rhs, x0, n):
 
 
 def bench(cls, vals, t, y, repeats):
-    best = None
+    """(update p50, p99, update_checked p50, Runner.process p50) in us, best of repeats."""
+    best = {}
     u = np.zeros(0)
+    flat = {"observer.type": cls.TYPE, **{f"{cls.TYPE}.{k}": v for k, v in vals.items()}}
     for _ in range(repeats):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             ob = cls(resolve(cls.PARAMS, vals, cls.TYPE + "."))
+            r = Runner(flat)
         ob.reset(t[0])
         ob.update(t[0], y[0], u)
-        d = time_calls(lambda i: ob.update(t[i + 1], y[i + 1], u), len(t) - 1)
-        if best is None or np.median(d) < np.median(best):
-            best = d
-    return np.median(best), np.percentile(best, 99)
+        got = {"update": time_calls(lambda i: ob.update(t[i + 1], y[i + 1], u), len(t) - 1)}
+        ob.reset(t[0])
+        ob.update_checked(t[0], y[0], u)
+        got["checked"] = time_calls(lambda i: ob.update_checked(t[i + 1], y[i + 1], u), len(t) - 1)
+        got["process"] = time_calls(lambda i: r.process(t[i], y[i]), len(t))
+        for k, d in got.items():
+            if k not in best or np.median(d) < np.median(best[k]):
+                best[k] = d
+    return (np.median(best["update"]), np.percentile(best["update"], 99),
+            np.median(best["checked"]), np.median(best["process"]))
 
 
 def main(argv=None) -> int:
@@ -76,11 +88,14 @@ def main(argv=None) -> int:
     ]
     print(f"numpy baseline (3x3 matvec): {base:.2f} us; {args.samples} samples, best of "
           f"{args.repeats}\n")
-    print("| observer, stream | update p50 (us) | update p99 (us) | p50 / matvec |")
-    print("|---|---|---|---|")
+    print("| observer, stream | update p50 (us) | update p99 (us) | update_checked p50 (us) | "
+          "Runner.process p50 (us) | update / matvec | update_checked / matvec | "
+          "process / matvec |")
+    print("|---|---|---|---|---|---|---|---|")
     for name, cls, vals, (t, y) in rows:
-        p50, p99 = bench(cls, vals, t, y, args.repeats)
-        print(f"| {name} | {p50:.1f} | {p99:.1f} | {p50 / base:.0f} |")
+        p50, p99, c50, r50 = bench(cls, vals, t, y, args.repeats)
+        print(f"| {name} | {p50:.1f} | {p99:.1f} | {c50:.1f} | {r50:.1f} | {p50 / base:.1f}x | "
+              f"{c50 / base:.1f}x | {r50 / base:.1f}x |")
     return 0
 
 

@@ -1,13 +1,19 @@
-"""Update cost per sample of the prescribed_time observer, in-process (no ROS), n = 2, 3, 4, 8.
+"""Update cost per sample of the prescribed_time observer, in-process (no ROS), n = 2, 3, 4, 8
+and the DC motor.
 
 Same method as bench_update.py: median and p99 of one ``Observer.update`` call and of
 one ``Runner.process`` call on the same 1 kHz sample stream, best of R repeats, and the
-median as a ratio to a plain numpy 3x3 matrix-vector product timed in the same run.
+median as a ratio to a plain numpy 3x3 matrix-vector product timed in the same run; and
+the median of ``Observer.update_checked`` (the compiled kernel's entry without the
+Python-side checks of y and u) and its ratio.
 
 Rows: the two example configs (n = 2: the paper's Example 1; n = 3, relative degree 2),
-then n = 4 and n = 8 chains of integrators (l from (s + 1)^n, T = 5 s, m = 1).  The
-stream is 5000 samples (5 s at 1 kHz) of the plant, so it covers a whole window up to
-its end at T, where the gains are largest (the cost does not depend on them).
+then n = 4 and n = 8 chains of integrators (l from (s + 1)^n, T = 5 s, m = 1), then the DC
+motor's plant block (config/dc_motor_plant.yaml: n = 3, relative degree 3, F = the sin q
+terms, a state map) with T = 1 s, l from (s + 1)^3, on the DC-motor stream of
+bench_update.py.  The stream is 5000 samples (5 s at 1 kHz) of the plant, so it covers a
+whole window up to its end at T, where the gains are largest (the cost does not depend on
+them).
 
     python benchmarks/bench_prescribed_time.py [--samples N] [--repeats R]
 
@@ -29,7 +35,8 @@ from scipy.linalg import expm
 from fto_ros.models.canonical_form import DOUBLE_INTEGRATOR, THIRD_ORDER, CanonicalPlant
 from fto_ros.runner import Runner, load_params_file
 
-from bench_update import matvec_baseline, measure, print_table   # the same measurement
+import bench_update
+from bench_update import matvec_baseline, measure, time_calls   # the same measurement
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -54,6 +61,29 @@ def cases():
         ("chain of 8 integrators (n = 8)", chain_params(8), CanonicalPlant((0.0,) * 8, (1.0,)),
          np.ones(8), lambda t: np.sin(t)),
     ]
+
+
+def dc_motor_params() -> dict:
+    from fto_ros.runner.params_file import load_params_files
+    flat = load_params_files([ROOT / "config" / "dc_motor_plant.yaml"])
+    flat.update({"observer.type": "prescribed_time", "prescribed_time.T": 1.0,
+                 "prescribed_time.l": [3.0, 3.0, 1.0]})
+    return flat
+
+
+def measure_checked(flat: dict, t, y, u, repeats: int) -> float:
+    """Median time (us) of ``update_checked``, the best of ``repeats`` runs."""
+    y = np.ascontiguousarray(y, dtype=float)
+    u = np.ascontiguousarray(u, dtype=float)
+    best = None
+    for _ in range(repeats):
+        obs = Runner(flat).observer
+        obs.reset(t[0])
+        obs.update_checked(t[0], y[0], u[0])
+        got = np.median(time_calls(lambda i: obs.update_checked(t[i + 1], y[i + 1], u[i + 1]),
+                                   len(t) - 1))
+        best = got if best is None else min(best, got)
+    return float(best)
 
 
 def stream(plant: CanonicalPlant, x0, ufun, n: int, h: float = 1e-3):
@@ -169,11 +199,22 @@ def main(argv=None) -> int:
             print(f"\nwrote {args.plot}")
         return 0
     base = matvec_baseline(args.samples, args.repeats)
-    rows = []
-    for label, flat, plant, x0, ufun in cases():
-        t, y, u = stream(plant, x0, ufun, args.samples)
+    runs = [(label, flat, stream(plant, x0, ufun, args.samples))
+            for label, flat, plant, x0, ufun in cases()]
+    runs.append(("dc_motor_plant.yaml, T = 1 s (n = 3, F, state map)", dc_motor_params(),
+                 bench_update.stream(args.samples)))
+    rows, checked = [], []
+    for label, flat, (t, y, u) in runs:
         rows.append((label, *measure(flat, t, y, u, args.repeats)))
-    print_table("prescribed_time", rows, base)
+        checked.append(measure_checked(flat, t, y, u, args.repeats))
+    print(f"numpy baseline (3x3 matvec): {base:.2f} us\n")
+    print("| prescribed_time | update p50 (us) | update p99 (us) | update_checked p50 (us) | "
+          "runner.process p50 (us) | runner.process p99 (us) | update / matvec | "
+          "update_checked / matvec | process / matvec |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for (name, p50, p99, r50, r99), c50 in zip(rows, checked):
+        print(f"| {name} | {p50:.1f} | {p99:.1f} | {c50:.1f} | {r50:.1f} | {r99:.1f} | "
+              f"{p50 / base:.1f}x | {c50 / base:.1f}x | {r50 / base:.1f}x |")
     return 0
 
 if __name__ == "__main__":

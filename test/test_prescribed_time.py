@@ -613,11 +613,14 @@ def test_rejected_sample_leaves_the_state_untouched():
     obs.reset(0.0)
     for k in range(50):
         obs.update(t[k], X[k, :1], np.array([u[k]]))
-    before = (obs.estimate.copy(), obs._prev, obs.window_start, obs.restarts)
+    # the whole committed state (estimate, last sample, window) and the clock
+    before = (obs.estimate.copy(), obs._st.copy(), obs._clk.copy(), obs.window_start)
     with pytest.raises(SampleRejected) as exc:
         obs.update(t[50], np.array([1e308]), np.array([1e308]))
     assert exc.value.reason == "non_finite_estimate"
-    assert np.array_equal(obs.estimate, before[0]) and obs._prev is before[1]
+    assert np.array_equal(obs.estimate, before[0])
+    assert np.array_equal(obs._st, before[1], equal_nan=True)
+    assert np.array_equal(obs._clk, before[2]) and obs.window_start == before[3]
     for k in range(50, len(t)):
         obs.update(t[k], X[k, :1], np.array([u[k]]))
     assert np.all(np.isfinite(obs.estimate))

@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Sequence
 
 import sympy
-from sympy.printing.precedence import precedence
+from sympy import S
 from sympy.printing.pycode import PythonCodePrinter
 
 from . import jit as J
@@ -52,14 +52,13 @@ class _Printer(PythonCodePrinter):
         return f"float(math.ceil({self._print(e.args[0])}))"
 
     def _print_Pow(self, e, rational=False):
-        # an integer power with a float exponent: numba compiles x**3 to multiplications,
-        # CPython (the numpy path, the expression parser's functions) calls pow(x, 3.0); with
-        # x**3.0 both call pow, bit for bit (measured: x**3 differs in 26 % of random x)
-        n = e.exp
-        if n.is_Integer and abs(int(n)) >= 2:
-            base = self.parenthesize(e.base, precedence(e), strict=False)
-            return f"{base}**{float(n)!r}" if n > 0 else f"{base}**({float(n)!r})"
-        return super()._print_Pow(e, rational=rational)
+        # libm's pow, as Python's ** on floats: numba's ** is rewritten by LLVM for constant
+        # exponents (x**2 as x*x, x**3 as products), which differs in the last bit
+        # (core/powers.py); square roots and 1/x print as before, in both paths
+        if e.exp in (S.Half, -S.Half, S.NegativeOne):
+            return super()._print_Pow(e, rational=rational)
+        exp = f"{float(e.exp)!r}" if e.exp.is_Number else self._print(e.exp)
+        return f"pow_({self._print(e.base)}, {exp})"
 
 
 def cache_dir() -> Path:
@@ -97,14 +96,6 @@ class _ArrayPrinter(_Printer):
         name = self._names.get(e)
         return name if name is not None else super()._print_Symbol(e)
 
-    def _print_Pow(self, e, rational=False):
-        # a whole exponent as a float: Python's x**3 is libm's pow(x, 3.0), numba's a
-        # product (other last bits); x**3.0 is pow in both (numba still squares x**2.0)
-        if e.exp.is_Integer and e.exp != -1 and not rational:
-            base = self.parenthesize(e.base, precedence(e), strict=False)
-            return f"{base}**{float(e.exp)!r}" if e.exp > 0 else f"{base}**({float(e.exp)!r})"
-        return super()._print_Pow(e, rational)
-
 
 def _source(exprs: Sequence[sympy.Expr], groups: Sequence[Sequence[sympy.Symbol]]) -> str:
     names = {}
@@ -117,7 +108,8 @@ def _source(exprs: Sequence[sympy.Expr], groups: Sequence[Sequence[sympy.Symbol]
     # (x0, x1, ... skipping the model's own) order the terms that use them
     reps, reduced = sympy.cse(tuple(sympy.sympify(e) for e in exprs), list=False)
     reduced = list(reduced)
-    lines = ["import math", "", "", "def fn(x, y, u, out):"]
+    lines = ["import math", "", "from fto_ros.core.powers import pow_", "", "",
+             "def fn(x, y, u, out):"]
     lines += [f"    {printer.doprint(v)} = {printer.doprint(e)}" for v, e in reps]
     for i, e in enumerate(reduced):
         lines.append(f"    out[{i}] = {printer.doprint(e)}")

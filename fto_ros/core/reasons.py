@@ -24,7 +24,7 @@ REJECTIONS = (
     "step_too_long", "non_finite_model_term", "non_finite_estimate", "non_finite_prediction",
     "singular_step", "measurement_older_than_prediction", "singular_jacobian",
     "singular_innovation_covariance", "model_undefined_at_estimate", "non_finite_differentiator",
-    "non_finite_gain", "non_finite_model", "step_spans_too_many_windows",
+    "non_finite_gain", "non_finite_model", "step_spans_too_many_windows", "non_finite_gamma_1",
     # the runner's verdict on an observer's output (the observer restarts)
     "observer_error", "estimate_implausible",
     # found by the node or the replay before the runner (message intake)

@@ -63,3 +63,13 @@ def cache_claim(wk, base, slots, size, key):
 @jit
 def cache_misses(wk, base):
     return int(wk[base + 1])
+
+
+@jit
+def cache_clear(wk, base, slots):
+    """Forget every entry (the miss count stays), from compiled code."""
+    wk[base] = 0.0
+    wk[base + 2] = 0.0
+    wk[base + 3] = -1.0
+    for i in range(slots):
+        wk[base + HEADER + i] = -1.0

@@ -15,7 +15,10 @@ estimates entering the model term are saturated at +-M (``saturation``: M; 0 mea
 saturation): this is what makes the semi-global theory work when the state stays in a
 KNOWN compact set |x_i| <= M, and what makes it fail when the trajectory leaves every
 compact set (finite escape).  Same exact integrator as ``global_norm`` (linear part exact
-for polynomial y, predictor-corrector model term).
+for polynomial y, predictor-corrector model term): global_norm/companion.py.
+
+This module is the adapter (parameters, gains, the kernel's arrays); the per-sample step is
+kernel.py.
 """
 from __future__ import annotations
 
@@ -23,15 +26,18 @@ import math
 
 import numpy as np
 
-from ..core.discretize import StepCache
-from ..core.expressions import NamedFunction
-from .base import ConfigError, Observer, Param, SampleRejected
-from .global_norm import companion_expm, companion_step, output_polynomial
+from ...core.expressions import NamedFunction
+from ...core.model_code import ModelFunction
+from ...core.step_cache import cache_floats, cache_init
+from .. import kernel as K
+from ..base import ConfigError, KernelObserver, Param
+from . import kernel
 
 P = "high_gain."
 
 
-class HighGainObserver(Observer):
+class HighGainObserver(KernelObserver):
+    KERNEL = kernel
     TYPE = "high_gain"
     DESCRIPTION = "constant-gain high-gain observer with saturated model term (semi-global)"
     HEALTH_NAME = "high gain L"
@@ -62,7 +68,6 @@ class HighGainObserver(Observer):
             raise ConfigError(P + "f", "required: f_n(y, x1, .., xn)")
         self.f = NamedFunction([cfg["f"]], ["y"] + [f"x{i}" for i in range(1, m)]
                                + [f"u{j}" for j in range(self.n_inputs)], P + "f")
-        self._u = (0.0,) * self.n_inputs        # the input held over the current step
         alpha = cfg["alpha"] or [float(math.comb(m, i + 1)) for i in range(m)]
         if len(alpha) != m:
             raise ConfigError(P + "alpha", f"expected {m} values, got {len(alpha)}")
@@ -79,85 +84,47 @@ class HighGainObserver(Observer):
         if not all(math.isfinite(g) for g in self.gains):
             raise ConfigError(P + "L", f"the gains alpha_i L^(i+1) overflow a double at L = {L:g} "
                               f"(n = {m}): use a smaller L")
-        self._c = [-g for g in self.gains]
         self.M = cfg["saturation"]
         self.on_estimate = cfg["model_input"] == "estimate"
         self.quadratic = cfg["output_hold"] == "quadratic"
         self.state_names = cfg["state_names"] or [f"x{i}" for i in range(m)]
         if len(self.state_names) != m:
             raise ConfigError(P + "state_names", f"expected {m} names, got {len(self.state_names)}")
-        self._E_cache = StepCache(lambda h: companion_expm(self._c, h), 64)
-        self._x = [0.0] * m
-        self._residual = float("nan")
-        self._sat = False
-        self._sat_count = 0
+        self._build()
 
-    def _restart(self, x0_hat):
+    def _build(self) -> None:
+        """The kernel's arrays (kernel.py has the layout)."""
+        m, nin = self.n_states, self.n_inputs
+        slots = kernel.CACHE_SLOTS
+        cache = cache_floats(slots, m * m)
+        wk = np.zeros(cache + kernel.scratch_size(m))
+        cache_init(wk, 0, slots)
+        ic = K.layout_ic(m, kernel.X_HAT, extra_ints=(
+            m, nin, int(self.on_estimate), int(self.quadratic), 0, slots, cache, 0))
+        eye = np.eye(m).ravel()
+        c = np.concatenate(([math.inf, self.M], self.gains, [-g for g in self.gains], eye, eye))
+        syms = self.f.syms
+        model = ModelFunction(self.f.exprs, [syms[1:m], syms[:1], syms[m:]])
+        self._build_kernel(c, ic, wk, kernel.state_size(m, nin), models=(model,))
+        self._st[K.HEALTH] = float(self.L)
+
+    def map_states(self, T: np.ndarray) -> None:
+        """Run on z = T x and take and publish plant coordinates (plant/mapped.py): an initial
+        estimate x0 becomes T x0, the estimate is T^-1 z_hat."""
         m = self.n_states
-        self._x = [0.0] * m if x0_hat is None else [float(v) for v in x0_hat]
-        self._y = self._yprev = self._hprev = None
-        self._sat_count = 0
-
-    def _model(self, y, x):
-        """f_n at (y or xh_0, xh_1..xh_n), the estimates saturated at M, and whether clipped."""
-        xbar = list(x) if self.on_estimate else list(x[1:])
-        M = self.M
-        sat = False
-        if M > 0:
-            clipped = [min(M, max(-M, v)) for v in xbar]
-            sat = clipped != list(xbar)
-            xbar = clipped
-        fv = self.f(*xbar, *self._u)[0] if self.on_estimate else self.f(y, *xbar, *self._u)[0]
-        if fv != fv or math.isinf(fv):
-            raise SampleRejected("non_finite_model_term")
-        return fv, sat
-
-    def _first(self, y, u, gap):
-        self._y = float(y[0])
-        self._residual = abs(self._y - self._x[0])
-        self._u = tuple(u)
-
-    def _step(self, s, h, y, u):
-        yk = float(y[0])
-        E = self._E_cache(h)
-        c, G, m, x0 = self._c, self.gains, self.n_states, self._x
-        ya, yb, yc = output_polynomial(self._yprev, self._hprev, self._y, yk, h, self.quadratic)
-        v0, _ = self._model(self._y, x0)
-        r0 = [G[i] * ya for i in range(m)]
-        r1 = [G[i] * yb for i in range(m)]
-        r2 = [G[i] * yc for i in range(m)]
-        r0[-1] += v0
-        try:
-            xp = companion_step(c, E, x0, h, r0, r1, r2)
-            v1, _ = self._model(yk, xp)
-            r1[-1] += (v1 - v0) / h
-            x = companion_step(c, E, x0, h, r0, r1, r2)
-        except (OverflowError, ZeroDivisionError, ValueError):
-            raise SampleRejected("non_finite_estimate") from None
-        if not all(math.isfinite(v) for v in x):
-            raise SampleRejected("non_finite_estimate")
-        _, sat = self._model(yk, x)
-        self._x, self._sat = x, sat
-        self._sat_count += sat
-        self._yprev, self._hprev = self._y, h
-        self._y = yk
-        self._residual = abs(yk - x[0])
-        self._u = tuple(u)
-
-    @property
-    def estimate(self):
-        return np.array(self._x, dtype=float)
-
-    @property
-    def health(self):
-        return float(self.L)
+        T = np.array(T, dtype=float)
+        o = kernel.t_map(m)
+        self._c[o:o + 2 * m * m] = np.concatenate((T.ravel(), np.linalg.inv(T).ravel()))
+        self._ic[kernel.MAPPED] = 1
+        self._ic[K.EST] = kernel.published(m, self.n_inputs)
+        self._restart(None)
 
     def diagnostics(self):
         return {
             "gains": ", ".join(f"{g:.4g}" for g in self.gains),
             "saturation": f"+-{self.M:g}" if self.M > 0 else "none",
             "model term at": "the estimate" if self.on_estimate else "y and the estimates",
-            "saturation active": "yes" if self._sat else "no",
-            "saturated steps": str(self._sat_count),
+            "saturation active": "yes" if self._st[kernel.SAT_ACTIVE] > 0.0 else "no",
+            "saturated steps": str(int(self._st[kernel.SAT_COUNT])),
             "guarantee": "semi-global: only while |x_i| <= M (none for escaping trajectories)",
         }
