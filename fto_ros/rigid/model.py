@@ -287,15 +287,19 @@ class RigidBodyModel:
         return M, C + C.T, C.T @ np.asarray(v, dtype=float), self.gravity(q)
 
 
-def load_model(joints: Sequence[str], *, urdf: str | os.PathLike | None = None,
+def load_model(joints: Sequence[str] | None, *, urdf: str | os.PathLike | None = None,
                robot_description: str | None = None, locked_joints: Mapping[str, float] | None = None,
                viscous_friction=None, coulomb_friction=None,
                friction_width: float = DEFAULT_FRICTION_WIDTH) -> RigidBodyModel:
     """A :class:`RigidBodyModel` from a URDF file (``plant.urdf``) or string
-    (``robot_description``), the joints to use (``plant.joints``) and the positions of the
-    joints locked (``plant.locked_joints``); friction per joint (None: the URDF's)."""
+    (``robot_description``), the joints to use (``plant.joints``; None: every joint of one
+    degree of freedom, in the URDF's tree order) and the positions of the joints locked
+    (``plant.locked_joints``); friction per joint (None: the URDF's)."""
     text, param = _read_source(urdf, robot_description)
     _check_xml(text, param)
     full = _pinocchio_model(text, param)
+    if joints is None:
+        joints = [full.names[i] for i in range(1, full.njoints) if full.joints[i].nv == 1
+                  and full.names[i] not in (locked_joints or {})]
     return RigidBodyModel(full, joints, locked_joints or {}, viscous_friction, coulomb_friction,
                           friction_width)
