@@ -3,23 +3,25 @@ kinematic lengths: 0.36 m base to A2, 0.42 m A2 to A4, 0.40 m A4 to A6, 0.126 m 
 flange; its joint ranges and torque classes), with masses and inertias of our own: each
 link is a solid cylinder of the given mass and radius spanning the link, its centre of mass
 offset a little from the axis as on a real casting, plus a 0.9 kg tool on the flange.
-Viscous (damping) and Coulomb (friction) joint friction of a harmonic-drive joint class.
+Viscous (damping) and Coulomb (friction) joint friction of a harmonic-drive joint class, and
+the armature (rotor inertia times the gear ratio squared, added to M's diagonal) in
+``<dynamics armature>``, an attribute fto_ros reads and urdfdom ignores.
 
     python scripts/make_arm7_urdf.py > urdf/arm7.urdf
 """
 import math
 
 # name, parent offset z to this joint (m), axis, lower/upper (deg), effort (Nm), velocity (deg/s),
-# damping (Nm s/rad), Coulomb friction (Nm), link mass (kg), link radius (m), link length (m),
-# centre-of-mass offset (x, y) from the axis (m)
+# damping (Nm s/rad), Coulomb friction (Nm), armature (kg m^2), link mass (kg), link radius (m),
+# link length (m), centre-of-mass offset (x, y) from the axis (m)
 JOINTS = [
-    ("joint_a1", 0.1575, "0 0 1", 170, 320, 85, 1.0, 1.2, 4.1, 0.075, 0.2025, (0.0, -0.012)),
-    ("joint_a2", 0.2025, "0 1 0", 120, 320, 85, 1.0, 1.2, 4.3, 0.070, 0.2045, (0.0, 0.020)),
-    ("joint_a3", 0.2045, "0 0 1", 170, 176, 100, 0.6, 0.8, 3.2, 0.065, 0.2155, (0.0, 0.015)),
-    ("joint_a4", 0.2155, "0 1 0", 120, 176, 75, 0.6, 0.8, 2.9, 0.065, 0.1845, (0.0, -0.018)),
-    ("joint_a5", 0.1845, "0 0 1", 170, 110, 130, 0.3, 0.4, 1.9, 0.055, 0.2155, (0.0, 0.010)),
-    ("joint_a6", 0.2155, "0 1 0", 120, 40, 135, 0.2, 0.25, 1.7, 0.050, 0.0810, (0.0, 0.005)),
-    ("joint_a7", 0.0810, "0 0 1", 175, 40, 135, 0.1, 0.15, 0.4, 0.045, 0.0450, (0.0, 0.0)),
+    ("joint_a1", 0.1575, "0 0 1", 170, 320, 85, 1.0, 1.2, 0.45, 4.1, 0.075, 0.2025, (0.0, -0.012)),
+    ("joint_a2", 0.2025, "0 1 0", 120, 320, 85, 1.0, 1.2, 0.45, 4.3, 0.070, 0.2045, (0.0, 0.020)),
+    ("joint_a3", 0.2045, "0 0 1", 170, 176, 100, 0.6, 0.8, 0.25, 3.2, 0.065, 0.2155, (0.0, 0.015)),
+    ("joint_a4", 0.2155, "0 1 0", 120, 176, 75, 0.6, 0.8, 0.25, 2.9, 0.065, 0.1845, (0.0, -0.018)),
+    ("joint_a5", 0.1845, "0 0 1", 170, 110, 130, 0.3, 0.4, 0.10, 1.9, 0.055, 0.2155, (0.0, 0.010)),
+    ("joint_a6", 0.2155, "0 1 0", 120, 40, 135, 0.2, 0.25, 0.06, 1.7, 0.050, 0.0810, (0.0, 0.005)),
+    ("joint_a7", 0.0810, "0 0 1", 175, 40, 135, 0.1, 0.15, 0.06, 0.4, 0.045, 0.0450, (0.0, 0.0)),
 ]
 TOOL = (0.9, 0.05, 0.10, (0.02, 0.0))       # mass, radius, length, com offset: a small gripper
 BASE = (5.0, 0.09, 0.1575)
@@ -50,14 +52,15 @@ def main():
            '<robot name="arm7">']
     out.append(link("link_0", *BASE, (0.0, 0.0)))
     parent = "link_0"
-    for i, (jn, dz, axis, lim, effort, vel, damp, fric, m, r, length, com) in enumerate(JOINTS, 1):
+    for i, (jn, dz, axis, lim, effort, vel, damp, fric, arm, m, r, length, com) in \
+            enumerate(JOINTS, 1):
         child = f"link_{i}"
         out.append(f'  <joint name="{jn}" type="revolute">\n'
                    f'    <parent link="{parent}"/>\n    <child link="{child}"/>\n'
                    f'    <origin xyz="0 0 {dz}" rpy="0 0 0"/>\n    <axis xyz="{axis}"/>\n'
                    f'    <limit lower="{-math.radians(lim):.4f}" upper="{math.radians(lim):.4f}" '
                    f'effort="{effort}" velocity="{math.radians(vel):.4f}"/>\n'
-                   f'    <dynamics damping="{damp}" friction="{fric}"/>\n'
+                   f'    <dynamics damping="{damp}" friction="{fric}" armature="{arm}"/>\n'
                    f'  </joint>\n')
         out.append(link(child, m, r, length, com))
         parent = child

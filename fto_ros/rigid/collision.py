@@ -2,7 +2,9 @@
 noise level and a false-alarm bound, hysteresis, the guaranteed detection time (ROS-free).
 
 **Threshold.** In free motion the estimate of joint i is noise of standard deviation sigma_i
-(measured over a calibration window at start-up, or given). One test per joint and sample
+(measured over a calibration window at start-up, or given). The window estimator's noise
+follows the configuration (its gain is ||a|| ||M_i,:(q)||); divided by that gain (``scale``)
+the residual is stationary, of the encoder's noise level, and sigma_i is calibrated on it. One test per joint and sample
 fails with probability ``2 Q(z)`` for a Gaussian residual, whatever the correlation between
 samples, so by the union bound a run of an hour at ``rate`` with n joints raises at most
 ``3600 rate n 2 Q(z)`` false alarms on average: ``z = Q^-1(bound / (2 3600 rate n))``
@@ -114,9 +116,16 @@ class CollisionDetector:
     def threshold(self) -> np.ndarray | None:
         return None if self.sigma is None else self.z * self.sigma
 
-    def update(self, t: float, tau_ext) -> Collision | None:
-        """Test one estimate; returns the joints that fired now (None: none did)."""
+    def update(self, t: float, tau_ext, scale=None) -> Collision | None:
+        """Test one estimate; returns the joints that fired now (None: none did).
+
+        ``scale``: the estimate's noise gain per joint at this sample (e.g.
+        ``WindowEstimator.noise_gain(q)``, which follows M(q)); the residual is divided by
+        it, so sigma and the thresholds are in its units (for the window estimator: radians
+        of encoder noise) and the threshold in torque is ``threshold * scale``."""
         r = np.abs(np.asarray(tau_ext, dtype=float).reshape(self.n))
+        if scale is not None:
+            r = r / np.asarray(scale, dtype=float).reshape(self.n)
         if not np.all(np.isfinite(r)):
             return None
         if self.sigma is None:

@@ -80,14 +80,15 @@ class WindowEstimator(_Estimator):
         velocity_order, velocity_L, velocity_rho: the differentiator of the velocities."""
 
     def __init__(self, model: RigidBodyModel, sample_period: float = 1e-3, window: float = 0.03,
-                 velocity_order: int = 2, velocity_L: float = 20.0, velocity_rho: float = 2.0):
+                 velocity_order: int = 2, velocity_L: float = 300.0, velocity_rho: float = 2.0,
+                 central: int = steps.CENTRAL):
         W = round(window / sample_period)
         if not (8 <= W <= 2000 and abs(W * sample_period - window) < 1e-9 + 1e-6 * window):
             raise ValueError(f"window: must be 8..2000 sample periods, got {window!r} s")
         self.samples = W
         self.window = W * sample_period
         self._red_c = steps.red_consts(velocity_order, velocity_L, velocity_rho)
-        self._win_c = steps.window_consts(model.n, W, sample_period, model.viscous)
+        self._win_c = steps.window_consts(model.n, W, sample_period, model.viscous, central)
         super().__init__(model, sample_period)
 
     @property
@@ -119,7 +120,7 @@ class WindowEstimator(_Estimator):
         noise at the configuration q: ||a|| ||M_i,:|| (the kernel's second-derivative weights,
         docs/external_torque.md)."""
         n, W = self.n, self.samples
-        a = self._win_c[3 + n:3 + n + W + 1]
+        a = self._win_c[4 + n:4 + n + W + 1]
         return np.linalg.norm(a) * np.linalg.norm(self.model.mass_matrix(q), axis=1)
 
     def step_response(self, elapsed: float) -> float:
@@ -134,7 +135,7 @@ class MomentumObserver(_Estimator):
     difference (``'difference'``)."""
 
     def __init__(self, model: RigidBodyModel, sample_period: float = 1e-3, gain: float = 50.0,
-                 velocity: str = "difference", velocity_order: int = 2, velocity_L: float = 20.0,
+                 velocity: str = "difference", velocity_order: int = 2, velocity_L: float = 300.0,
                  velocity_rho: float = 2.0):
         if velocity not in ("difference", "differentiator"):
             raise ValueError(f"velocity: 'difference' or 'differentiator', got {velocity!r}")

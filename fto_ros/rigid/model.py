@@ -6,7 +6,9 @@
 for the joints a user lists, in the user's order (the others are locked at given
 positions: Pinocchio's reduced model). tau_f is the friction model per joint, viscous and
 Coulomb with a smooth sign: tau_f = b v + f_c tanh(v / w); by default b and f_c are the
-URDF's ``<dynamics damping friction>``.
+URDF's ``<dynamics damping friction>``. The armature (a motor's rotor inertia reflected
+through its gear, added to M's diagonal) is ``<dynamics armature>`` when the URDF gives it
+(an attribute urdfdom ignores), or given.
 
 Refusals are one line naming the parameter (``ConfigError``): a source over the size limit
 (checked before anything is parsed), XML that does not parse, a URDF Pinocchio cannot read
@@ -68,10 +70,32 @@ def _read_source(urdf: str | os.PathLike | None, robot_description: str | None) 
         raise ConfigError("plant.urdf", f"{short(str(path))} is not UTF-8 text") from None
 
 
+def _armatures(root: ET.Element, param: str) -> dict[str, float]:
+    """joint name -> the ``armature`` attribute of its ``<dynamics>`` (non-standard)."""
+    out = {}
+    for j in root.findall("joint"):
+        dyn = j.find("dynamics")
+        if dyn is not None and "armature" in dyn.attrib:
+            try:
+                x = float(dyn.attrib["armature"])
+            except ValueError:
+                x = math.nan
+            if not (math.isfinite(x) and x >= 0):
+                raise ConfigError(param, f"joint {short(j.get('name'))}: the armature must be a "
+                                         f"number >= 0, got {short(dyn.attrib['armature'])}")
+            out[j.get("name")] = x
+    return out
+
+
 def _check_xml(text: str, param: str) -> ET.Element:
     """The parsed <robot> element (Python's expat refuses entity expansion bombs)."""
     if "\x00" in text:
         raise ConfigError(param, "not a URDF: the text holds a NUL character")
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError as err:
+        raise ConfigError(param, f"not a URDF: not encodable as UTF-8 ({err.reason} at "
+                                 f"character {err.start})") from None
     try:
         root = ET.fromstring(text)
     except ET.ParseError as err:
@@ -131,7 +155,7 @@ class RigidBodyModel:
 
     def __init__(self, full_model, joints: Sequence[str], locked: Mapping[str, float],
                  viscous=None, coulomb=None, friction_width: float = DEFAULT_FRICTION_WIDTH,
-                 joints_param: str = "plant.joints"):
+                 armature=None, joints_param: str = "plant.joints"):
         import pinocchio as pin
         self._pin = pin
         joints = list(joints) if not isinstance(joints, str) else [joints]
@@ -190,6 +214,12 @@ class RigidBodyModel:
         self._nq = [model.joints[i].nq for i in ids]
         self._iv = np.array([model.joints[i].idx_v for i in ids])
         self._q_pin = pin.neutral(model)
+        if armature is not None:
+            arm = (np.array([armature.get(j, 0.0) for j in joints]) if isinstance(armature, dict)
+                   else _as_vector(armature, n, "plant.armature", nonnegative=True))
+            model.armature[self._iv] = arm
+            self.data = model.createData()
+        self.armature = np.array(model.armature[self._iv])
         self.viscous = (_as_vector(model.damping[self._iv], n, "plant.viscous_friction")
                         if viscous is None else
                         _as_vector(viscous, n, "plant.viscous_friction", nonnegative=True))
@@ -290,16 +320,18 @@ class RigidBodyModel:
 def load_model(joints: Sequence[str] | None, *, urdf: str | os.PathLike | None = None,
                robot_description: str | None = None, locked_joints: Mapping[str, float] | None = None,
                viscous_friction=None, coulomb_friction=None,
-               friction_width: float = DEFAULT_FRICTION_WIDTH) -> RigidBodyModel:
+               friction_width: float = DEFAULT_FRICTION_WIDTH, armature=None) -> RigidBodyModel:
     """A :class:`RigidBodyModel` from a URDF file (``plant.urdf``) or string
     (``robot_description``), the joints to use (``plant.joints``; None: every joint of one
     degree of freedom, in the URDF's tree order) and the positions of the joints locked
-    (``plant.locked_joints``); friction per joint (None: the URDF's)."""
+    (``plant.locked_joints``); friction and armature per joint (None: the URDF's)."""
     text, param = _read_source(urdf, robot_description)
-    _check_xml(text, param)
+    root = _check_xml(text, param)
+    if armature is None:
+        armature = _armatures(root, param)
     full = _pinocchio_model(text, param)
     if joints is None:
         joints = [full.names[i] for i in range(1, full.njoints) if full.joints[i].nv == 1
                   and full.names[i] not in (locked_joints or {})]
     return RigidBodyModel(full, joints, locked_joints or {}, viscous_friction, coulomb_friction,
-                          friction_width)
+                          friction_width, armature)

@@ -128,12 +128,13 @@ def gregory_weights(W: int) -> np.ndarray:
     return w
 
 
-#: half-width (samples) of the centred velocity the velocity-dependent terms are evaluated at
+#: default half-width (samples) of the centred velocity of the velocity-dependent terms
 CENTRAL = 4
 
 
-def window_consts(n: int, samples: int, h: float, viscous: np.ndarray) -> np.ndarray:
-    """[n, W, h, viscous (n), a (W+1), b (W+1), c (W+1), d (W)] for a window of W = samples
+def window_consts(n: int, samples: int, h: float, viscous: np.ndarray,
+                  central: int = CENTRAL) -> np.ndarray:
+    """[n, W, h, m, viscous (n), a (W+1), b (W+1), c (W+1), d (W)] for a window of W = samples
     steps of h: a, b, c the quadrature weights of k'', k', k at u_j = j h (j = 0 newest),
     k(u) = kappa(u / T) / T, T = W h; d_j = the integral of k over [j h, (j+1) h]."""
     W = int(samples)
@@ -145,7 +146,9 @@ def window_consts(n: int, samples: int, h: float, viscous: np.ndarray) -> np.nda
     c = g * kernel(s, 0) / T
     d = np.diff(kernel(s, -1))
     visc = np.broadcast_to(np.asarray(viscous, dtype=float), (n,))
-    return np.concatenate([[n, W, h], visc, a, b, c, d])
+    if not 1 <= int(central) <= W // 2:
+        raise ValueError(f"central: 1..{W // 2} samples, got {central!r}")
+    return np.concatenate([[n, W, h, int(central)], visc, a, b, c, d])
 
 
 def _win_layout(consts):
@@ -161,10 +164,10 @@ def window_init(consts: np.ndarray) -> np.ndarray:
 
 
 def window_central(state: np.ndarray, consts: np.ndarray, y: np.ndarray):
-    """(q, v) at sample k - CENTRAL, v the least-squares slope of the 2 CENTRAL + 1 positions
+    """(q, v) at sample k - m, v the least-squares slope of the 2 m + 1 positions
     around it (y = q_k the newest), or None before there are so many samples."""
     n, W, slot = _win_layout(consts)
-    m = CENTRAL
+    m = int(consts[3])
     if state[0] < 2 * m:
         return None
     head = int(state[1])
@@ -180,7 +183,7 @@ def window_step(state: np.ndarray, consts: np.ndarray, h: float, y: np.ndarray, 
     """Take the sample (y, u) with the model terms at it: M(q), Mdot(q, v), and
     phi = C(q, v)^T v - g(q) - f_c tanh(v / w) (the friction but its viscous part, which the
     window takes from the positions), provisional (at the differentiator's velocity); and
-    ``Mdot_c``, ``phi_c`` at sample k - CENTRAL with the centred velocity of
+    ``Mdot_c``, ``phi_c`` at sample k - m with the centred velocity of
     :func:`window_central`, which replace its provisional ones (None while there is no such
     sample). Estimate tau_ext once W + 1 samples are in."""
     n, W, slot = _win_layout(consts)
@@ -191,8 +194,8 @@ def window_step(state: np.ndarray, consts: np.ndarray, h: float, y: np.ndarray, 
     _check_terms(M, Mdot, phi)
     if Mdot_c is not None:
         _check_terms(Mdot_c, phi_c)
-    visc = consts[3:3 + n]
-    off = 3 + n
+    visc = consts[4:4 + n]
+    off = 4 + n
     a, b, c = (consts[off + i * (W + 1):off + (i + 1) * (W + 1)] for i in range(3))
     d = consts[off + 3 * (W + 1):off + 3 * (W + 1) + W]
     new = state.copy()
@@ -200,7 +203,7 @@ def window_step(state: np.ndarray, consts: np.ndarray, h: float, y: np.ndarray, 
     ring = new[2 + n:].reshape(W + 1, slot)
     ring[head] = np.concatenate([y, M.ravel(), M @ y, Mdot.ravel(), Mdot @ y, phi, u])
     if Mdot_c is not None:
-        old = ring[(head - CENTRAL) % (W + 1)]
+        old = ring[(head - int(consts[3])) % (W + 1)]
         old[2 * n + n * n:2 * n + 2 * n * n] = Mdot_c.ravel()
         old[2 * n + 2 * n * n:3 * n + 2 * n * n] = Mdot_c @ old[:n]
         old[3 * n + 2 * n * n:4 * n + 2 * n * n] = phi_c
