@@ -347,3 +347,33 @@ def test_window_step_never_writes_its_input_state(arm):
             steps.window_step(s, c, args["h"], args["y"], args["u"], args["M"], args["Mdot"],
                               args["phi"])
     np.testing.assert_array_equal(s, before)
+
+
+# -- fto-simulate --urdf ---------------------------------------------------------------------
+def test_fto_simulate_urdf_writes_a_bag_that_reads_back(tmp_path, capsys):
+    from fto_ros.cli.simulate import main
+    from fto_ros.cli.simulate_arm import read_arm_bag
+    out = tmp_path / "arm"
+    assert main(["--urdf", str(URDF), "--out", str(out), "--duration", "0.2", "--seed", "7",
+                 "--contact", "link_6,0.1,0.05,45,0,0"]) == 0
+    r, meta = read_arm_bag(out)
+    direct = simulate_arm(load_model(JOINTS, urdf=URDF), ArmSettings(
+        duration=0.2, seed=7, contacts=[Contact("link_6", 0.1, 0.05, (45, 0, 0))]))
+    for name in ("t", "q", "v", "q_measured", "tau", "tau_ext", "contact"):
+        np.testing.assert_allclose(getattr(r, name), getattr(direct, name), rtol=0, atol=1e-9)
+    assert meta["joints"] == JOINTS and meta["contacts"][0]["force"] == [45.0, 0.0, 0.0]
+    assert r.contact[100, 0] == 1.0 and r.contact[99, 0] == 0.0 and r.contact[150, 0] == 0.0
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--joints", "joint_a1,nope"], "no movable joint(s) nope"),
+    (["--joints", "joint_a1"], "neither listed"),
+    (["--contact", "no_link,0.1,0.05,1,0,0"], "no link or frame"),
+    (["--lock", "joint_a9=0"], "no joint(s) joint_a9"),
+])
+def test_fto_simulate_urdf_refuses_bad_arguments_in_one_line(tmp_path, capsys, args, words):
+    from fto_ros.cli.simulate import main
+    assert main(["--urdf", str(URDF), "--out", str(tmp_path / "x"), "--duration", "0.01",
+                 *args]) == 2
+    err = capsys.readouterr().err.strip()
+    assert words in err and "\n" not in err and not (tmp_path / "x").exists()

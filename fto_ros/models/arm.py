@@ -38,8 +38,9 @@ class Contact:
     rise: float = 0.0
 
     def scale(self, t: float) -> float:
-        """The fraction of the force acting at t, in [0, 1]."""
-        a, b = self.t, self.t + self.duration
+        """The fraction of the force acting at t, in [0, 1] (on for t in [t, t + duration),
+        to 1 ns: the switching times are sums of floats)."""
+        a, b = self.t - 1e-9, self.t + self.duration - 1e-9
         if t < a or t >= b:
             return 0.0
         if self.rise <= 0.0:
@@ -122,8 +123,11 @@ def simulate_arm(model: RigidBodyModel, s: ArmSettings) -> ArmRun:
                 tau += model.jacobian(c.link, q)[:3].T @ (a * np.asarray(c.force))
         return tau
 
-    def deriv(t, q, v, tau):
-        return v, model.forward_dynamics(q, v, tau + external(t, q))
+    def deriv(ts, t, q, v, tau):
+        # the contact at a time inside the step [ts, ts + hs]: a switch on its boundary acts
+        # on the whole step after it, never on the stages of the one before
+        tc = min(max(t, ts + 1e-7 * hs), ts + (1 - 1e-7) * hs)
+        return v, model.forward_dynamics(q, v, tau + external(tc, q))
 
     N = steps + 1
     out = {k: np.zeros((N, n)) for k in ("q", "v", "q_m", "tau", "tau_ext")}
@@ -149,10 +153,10 @@ def simulate_arm(model: RigidBodyModel, s: ArmSettings) -> ArmRun:
             break
         for i in range(int(s.substeps)):       # classical RK4, torque held
             ts = t + i * hs
-            k1q, k1v = deriv(ts, q, v, tau)
-            k2q, k2v = deriv(ts + hs / 2, q + hs / 2 * k1q, v + hs / 2 * k1v, tau)
-            k3q, k3v = deriv(ts + hs / 2, q + hs / 2 * k2q, v + hs / 2 * k2v, tau)
-            k4q, k4v = deriv(ts + hs, q + hs * k3q, v + hs * k3v, tau)
+            k1q, k1v = deriv(ts, ts, q, v, tau)
+            k2q, k2v = deriv(ts, ts + hs / 2, q + hs / 2 * k1q, v + hs / 2 * k1v, tau)
+            k3q, k3v = deriv(ts, ts + hs / 2, q + hs / 2 * k2q, v + hs / 2 * k2v, tau)
+            k4q, k4v = deriv(ts, ts + hs, q + hs * k3q, v + hs * k3v, tau)
             q = q + hs / 6 * (k1q + 2 * k2q + 2 * k3q + k4q)
             v = v + hs / 6 * (k1v + 2 * k2v + 2 * k3v + k4v)
         if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
