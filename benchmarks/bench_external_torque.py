@@ -40,7 +40,7 @@ from fto_ros.models.arm import ArmSettings, simulate_arm  # noqa: E402
 from fto_ros.rigid import load_model  # noqa: E402
 from fto_ros.rigid.collision import CollisionDetector  # noqa: E402
 from fto_ros.rigid.external_torque import (FiniteDifference, MomentumObserver,  # noqa: E402
-                                           WindowEstimator)
+                                           WindowEstimator, run_over)
 
 BAGS = ["arm7_contact_link6", "arm7_contact_tool", "arm7_free"]
 URDF = ROOT / "urdf" / "arm7.urdf"
@@ -57,19 +57,8 @@ def contact_intervals(run):
     return list(zip(starts, ends))
 
 
-def estimate(est, run):
-    N, n = run.t.size, run.q.shape[1]
-    E, V = np.full((N, n), np.nan), np.zeros((N, n))
-    for k in range(N):
-        out = est.update(run.t[k], run.q_measured[k], run.tau[k])
-        if out is not None:
-            E[k] = out
-        V[k] = est.velocity
-    return E, V
-
-
 def evaluate(est, run):
-    E, V = estimate(est, run)
+    E, V = run_over(est, run.t, run.q_measured, run.tau)
     t = run.t
     contacts = contact_intervals(run)
     free = t >= 0.5

@@ -16,7 +16,7 @@ from fto_ros.models.arm import ArmSettings, Contact, simulate_arm
 from fto_ros.rigid import load_model, steps
 from fto_ros.rigid.collision import CollisionDetector, detection_time, threshold_sigmas
 from fto_ros.rigid.external_torque import (FiniteDifference, MomentumObserver, SampleRejected,
-                                           WindowEstimator)
+                                           WindowEstimator, run_over)
 from fto_ros.rigid.model import MAX_URDF_BYTES
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -188,13 +188,7 @@ def test_simulation_is_reproducible_by_seed(arm):
 
 
 def run(est, r):
-    E, V = np.full(r.q.shape, np.nan), np.zeros(r.q.shape)
-    for k in range(r.t.size):
-        out = est.update(r.t[k], r.q_measured[k], r.tau[k])
-        if out is not None:
-            E[k] = out
-        V[k] = est.velocity
-    return E, V
+    return run_over(est, r.t, r.q_measured, r.tau)
 
 
 def test_window_estimate_is_exact_after_its_window_without_noise(arm, clean_contact):

@@ -41,6 +41,7 @@ from ..core.errors import ConfigError
 from ..models.arm import ArmSettings, Contact, simulate_arm
 from ..models.simulate import to_ns
 from ..rigid.model import load_model
+from .args import guarded, non_negative_float, one_line, positive_float
 
 PROG = "fto-simulate"
 METADATA_KEY = "fto_ros.simulation"
@@ -72,26 +73,6 @@ def _lock(text: str) -> tuple[str, float]:
     return name, x
 
 
-def _positive(text: str) -> float:
-    try:
-        x = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(x) and x > 0):
-        raise argparse.ArgumentTypeError(f"must be finite and > 0, got {text!r}")
-    return x
-
-
-def _non_negative(text: str) -> float:
-    try:
-        x = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(x) and x >= 0):
-        raise argparse.ArgumentTypeError(f"must be finite and >= 0, got {text!r}")
-    return x
-
-
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=f"{PROG} --urdf", description="Simulate an arm from its "
                                 "URDF and record a rosbag2 (MCAP) bag (docs/replay.md).")
@@ -107,12 +88,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a force (N, world axes) on the origin of LINK's frame from T for "
                         "DURATION s, ramped over RISE s at both ends (default 0: a step); "
                         "repeatable")
-    p.add_argument("--duration", type=_positive, default=10.0, metavar="S")
-    p.add_argument("--rate", type=_positive, default=1000.0, metavar="HZ",
+    p.add_argument("--duration", type=positive_float, default=10.0, metavar="S")
+    p.add_argument("--rate", type=positive_float, default=1000.0, metavar="HZ",
                    help="sample and control rate (default 1000)")
-    p.add_argument("--noise", type=_non_negative, default=1e-5, metavar="RAD",
+    p.add_argument("--noise", type=non_negative_float, default=1e-5, metavar="RAD",
                    help="encoder noise standard deviation (default 1e-5)")
-    p.add_argument("--resolution", type=_non_negative, default=2.0 ** -18, metavar="RAD",
+    p.add_argument("--resolution", type=non_negative_float, default=2.0 ** -18, metavar="RAD",
                    help="encoder quantisation step (default 2^-18; 0: none)")
     p.add_argument("--seed", type=int, default=0, metavar="N")
     p.add_argument("--system", default="arm", metavar="NAME", help="topic namespace")
@@ -121,7 +102,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    """Run ``fto-simulate --urdf``; returns the exit code (argparse errors exit with 2)."""
+    return guarded(PROG, _run, build_parser().parse_args(argv))
+
+
+def _run(args) -> int:
     out = Path(args.out)
     if (out.exists() or out.is_symlink()) and not args.overwrite:
         print(f"{PROG}: error: {out}: output exists already (use --overwrite)", file=sys.stderr)
@@ -141,7 +126,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             settings.amplitude, settings.period = (0.3,) * model.n, (4.0,) * model.n
         run = simulate_arm(model, settings)
     except (ConfigError, ValueError) as err:
-        print(f"{PROG}: error: {' '.join(str(err).split())}", file=sys.stderr)
+        print(f"{PROG}: error: {one_line(err)}", file=sys.stderr)
         return 2
     sim_time = time.perf_counter() - started
     sysn = args.system

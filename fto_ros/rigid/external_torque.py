@@ -23,6 +23,19 @@ from . import steps
 from .model import RigidBodyModel
 
 
+def run_over(est, t, q, tau) -> tuple[np.ndarray, np.ndarray]:
+    """(tau_ext estimates, velocity estimates) of a restarted ``est`` over a recording: per
+    sample k the estimate after ``est.update(t[k], q[k], tau[k])`` (NaN while there is none)."""
+    est.reset()
+    E, V = np.full(np.shape(q), np.nan), np.zeros(np.shape(q))
+    for k in range(len(t)):
+        out = est.update(t[k], q[k], tau[k])
+        if out is not None:
+            E[k] = out
+        V[k] = est.velocity
+    return E, V
+
+
 class SampleRejected(ValueError):
     """A sample the estimator cannot use; its state is unchanged."""
 
