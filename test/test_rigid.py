@@ -104,7 +104,14 @@ def test_user_order_locking_and_friction():
     assert locked.mass_matrix([0.3])[0, 0] == pytest.approx(ref.mass_matrix((0.3, 0.0))[0, 0])
     arm = load_model(JOINTS, urdf=URDF)
     assert arm.viscous.tolist()[:2] == [1.0, 1.0] and arm.coulomb[0] == 1.2   # the URDF's
-    assert arm.jacobian("link_6", np.zeros(7)).shape == (6, 7)
+    q = np.array([0.1, 0.5, 0.2, -1.2, 0.3, 0.8, 0.1])
+    assert arm.jacobian("link_6", q).shape == (6, 7)
+    f = np.array([45.0, -10.0, 5.0])
+    tau = arm.jacobian("link_6", q)[:3].T @ f
+    np.testing.assert_allclose(arm.wrench("link_6", q, tau, force_only=True), [*f, 0, 0, 0],
+                               atol=1e-9)
+    np.testing.assert_allclose(arm.jacobian("link_6", q).T @ arm.wrench("link_6", q, tau), tau,
+                               atol=1e-9)
 
 
 @pytest.mark.parametrize("kwargs, param, words", [

@@ -92,7 +92,7 @@ class WindowEstimator(_Estimator):
         window: T in seconds (a whole number of sample periods, at least 8).
         velocity_order, velocity_L, velocity_rho: the differentiator of the velocities."""
 
-    def __init__(self, model: RigidBodyModel, sample_period: float = 1e-3, window: float = 0.03,
+    def __init__(self, model: RigidBodyModel, sample_period: float = 1e-3, window: float = 0.06,
                  velocity_order: int = 2, velocity_L: float = 300.0, velocity_rho: float = 2.0,
                  central: int = steps.CENTRAL):
         W = round(window / sample_period)

@@ -310,6 +310,15 @@ class RigidBodyModel:
                                      pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
         return np.array(J[:, self._iv])
 
+    def wrench(self, link: str, q, tau_ext, force_only: bool = False) -> np.ndarray:
+        """The wrench (f; m) at the origin of ``link``'s frame, world axes, whose joint torques
+        J^T (f; m) best match ``tau_ext`` (least squares; with ``force_only`` a pure force,
+        m = 0): the contact wrench a tau_ext estimate implies, if the contact is on that link."""
+        J = self.jacobian(link, q)
+        A = J[:3].T if force_only else J.T
+        w = np.linalg.lstsq(A, np.asarray(tau_ext, dtype=float), rcond=1e-9)[0]
+        return np.concatenate([w, np.zeros(3)]) if force_only else w
+
     def momentum_terms(self, q, v) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(M, Mdot, C^T v, g) at (q, v): what the estimators' steps take from the model."""
         M = self.mass_matrix(q)
