@@ -1,8 +1,9 @@
 """External joint torques of an arm: the adapters around the pure steps of :mod:`.steps`.
 
 Each adapter owns a design (its constants), the restart and the calls to Pinocchio, and is
-transactional: a sample it cannot use raises :class:`SampleRejected` and leaves every
-state as it was. ``update(t, q, tau)`` takes the measured positions at t and the torques
+transactional: a sample it cannot use (not one finite value per joint, an absurd value, a
+stamp that is not one sample period after the last) raises :class:`SampleRejected` and
+leaves every state as it was; after a gap, ``reset()``. ``update(t, q, tau)`` takes the measured positions at t and the torques
 commanded at t (they act until the next sample) and returns the tau_ext estimate, or None
 while it has none yet; ``velocity`` is the joint-velocity estimate at the last sample.
 
@@ -56,21 +57,29 @@ class _Estimator:
         self._restart()
 
     def _inputs(self, t, q, tau):
-        q = np.asarray(q, dtype=float).reshape(-1)
-        tau = np.asarray(tau, dtype=float).reshape(-1)
-        if not math.isfinite(t):
-            raise SampleRejected("the stamp is not finite")
+        vectors = []
+        for name, x in (("positions", q), ("torques", tau)):
+            try:
+                arr = np.asarray(x, dtype=float)
+            except (TypeError, ValueError):
+                raise SampleRejected(f"{name}: not numbers") from None
+            if arr.shape != (self.n,):
+                raise SampleRejected(f"{name}: need {self.n} values, got shape {arr.shape}")
+            vectors.append(arr)
+        if not (isinstance(t, (int, float, np.floating)) and math.isfinite(t)):
+            raise SampleRejected(f"the stamp {t!r} is not a finite number")
         h = None if self._t is None else t - self._t
-        if h is not None and not h > 0:
-            raise SampleRejected(f"the stamp does not advance ({t!r} after {self._t!r})")
+        if h is not None and not abs(h - self.h) <= 1e-3 * self.h:
+            raise SampleRejected(f"the step {h!r} s is not the sample period {self.h!r} s "
+                                 f"(within 0.1 %): restart after a gap")
         try:
-            steps._check(1.0 if h is None else h, q, tau, self.n)
+            steps._check(self.h, vectors[0], vectors[1], self.n)
         except ValueError as err:
             raise SampleRejected(str(err)) from None
-        return h, q, tau
+        return h, vectors[0], vectors[1]
 
     def update(self, t: float, q, tau):
-        h, q, tau = self._inputs(float(t), q, tau)
+        h, q, tau = self._inputs(t, q, tau)
         try:
             self._update(h, q, tau)
         except ValueError as err:
