@@ -231,10 +231,7 @@ class RigidBodyModel:
             raise ConfigError("plant.friction_width", f"must be a finite number > 0, got "
                                                       f"{short(friction_width)}")
         self.friction_width = w
-        self.lower = np.array([model.lowerPositionLimit[i] for i in self._iq])
-        self.upper = np.array([model.upperPositionLimit[i] for i in self._iq])
         self.effort_limit = np.array(model.effortLimit[self._iv])
-        self.velocity_limit = np.array(model.velocityLimit[self._iv])
         self._perm = np.ix_(self._iv, self._iv)
 
     # -- coordinates ------------------------------------------------------------------------
