@@ -17,8 +17,6 @@ state; the ``*_view``/``*_output`` helpers read a state. docs/external_torque.md
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from ..core.differentiator import _scaled_chain, matched_gain_coefficients
