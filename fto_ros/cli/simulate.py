@@ -6,10 +6,12 @@ Usage::
                  [--uncertainty] [--seed N] [--state-jump T,STATE,DELTA ...]
                  [--sample-times FILE | --sparse-min S --sparse-max S] [--overwrite]
     fto-simulate --params FILE [--params FILE ...] [--set NAME=VALUE] --out BAG [...]
+    fto-simulate --urdf FILE --out BAG [--joints ...] [--contact ...] [...]
 
 The second form simulates a user's plant block with the ``simulation.*`` parameters of the
 params files (:mod:`fto_ros.cli.simulate_plant`); ``--duration``, ``--rate``, ``--noise``
-and ``--seed`` override them when given.
+and ``--seed`` override them when given. The third simulates an arm from its URDF
+(:mod:`fto_ros.cli.simulate_arm`).
 
 Topics (``SYS`` = the model name, e.g. ``dc_motor``):
 
@@ -202,6 +204,10 @@ def _measurement_instants(args, parser, base: np.ndarray,
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``fto-simulate``; returns the exit code (argparse errors exit with 2)."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if any(a == "--urdf" or a.startswith("--urdf=") for a in argv):
+        from .simulate_arm import main as arm_main       # an arm from its URDF
+        return arm_main(argv)
     parser = build_parser()
     args = parser.parse_args(argv)
     defaults = dict(duration=10.0, rate=1000.0, noise=0.0, seed=0)
