@@ -154,14 +154,7 @@ def test_managed_node_through_the_lifecycle_services(tmp_path, plant):
         p["diagnostics"].update(period=0.2, expected_rate=0.0)
     domain = _domain(42)
     params = _params_file(tmp_path, "managed", edit)
-    node = NodeProcess.__new__(NodeProcess)
-    # the managed executable (its own module), else as NodeProcess starts the plain one
-    node.err_path = tmp_path / "managed.log"
-    node._err = open(node.err_path, "w+")
-    node.proc = subprocess.Popen([sys.executable, "-m", "fto_ros.nodes.managed_node", "--ros-args",
-                                  "--params-file", str(params)], cwd=ROOT,
-                                 env=_ros_env(domain, tmp_path), stdout=node._err,
-                                 stderr=subprocess.STDOUT)
+    node = NodeProcess(tmp_path, domain, params, module="fto_ros.nodes.managed_node")
     driver = Driver(domain)
     try:
         driver.wait_for(lambda: driver.node.count_publishers(NODE + "/transition_event") > 0

@@ -63,9 +63,30 @@ TOL = np.array([1e-3, 1e-2, 5e-2])  # (q, q_dot, I), see the module docstring
 T_CONVERGED = 0.5
 
 
+#: domain ids held by the nodes and drivers alive now (pool mode of _domain)
+_HELD: dict[int, int] = {}
+_NEXT = [0]
+
+
 def _domain(offset: int) -> int:
-    """A domain id in 1..100 of this pytest process (offset: one per node under test)."""
-    return 1 + (os.getpid() + offset) % 100
+    """A domain id of this pytest process for one node under test: 1..100 from the pid and
+    ``offset``; or, with FTO_TEST_DOMAIN_IDS=LO-HI (a range of ids given to this run, e.g.
+    on a shared machine), the next id of that range no live node or driver holds."""
+    pool = os.environ.get("FTO_TEST_DOMAIN_IDS")
+    if not pool:
+        return 1 + (os.getpid() + offset) % 100
+    lo, _, hi = pool.partition("-")
+    ids = list(range(int(lo), int(hi or lo) + 1))
+    for i in range(len(ids)):
+        domain = ids[(_NEXT[0] + i) % len(ids)]
+        if not _HELD.get(domain):
+            _NEXT[0] = (_NEXT[0] + i + 1) % len(ids)
+            return domain
+    pytest.fail(f"FTO_TEST_DOMAIN_IDS={pool}: every id is held by a live node")
+
+
+def _hold(domain: int, n: int) -> None:
+    _HELD[domain] = _HELD.get(domain, 0) + n
 
 
 # --------------------------------------------------------------------------- plant
@@ -120,16 +141,20 @@ def _params_file(tmp: Path, name: str, edit=None) -> Path:
 class NodeProcess:
     """The observer node as a subprocess; stop() sends SIGINT like Ctrl-C."""
 
-    def __init__(self, tmp: Path, domain: int, params: Path, *extra: str):
+    def __init__(self, tmp: Path, domain: int, params: Path | None, *extra: str,
+                 module: str = "fto_ros.nodes.observer_node"):
         self.err_path = tmp / f"node_{domain}_{int(time.monotonic() * 1e3)}.log"
         self._err = open(self.err_path, "w+")
-        cmd = [sys.executable, "-m", "fto_ros.nodes.observer_node", "--ros-args",
-               "--params-file", str(params), *extra]
+        cmd = [sys.executable, "-m", module, "--ros-args",
+               *(("--params-file", str(params)) if params is not None else ()), *extra]
         self.proc = subprocess.Popen(cmd, cwd=ROOT, env=_ros_env(domain, tmp),
                                      stdout=self._err, stderr=subprocess.STDOUT)
+        self.domain = domain
+        _hold(domain, 1)
 
     def log(self) -> str:
-        self._err.flush()
+        if not self._err.closed:
+            self._err.flush()
         return self.err_path.read_text()
 
     def check_alive(self) -> None:
@@ -144,7 +169,9 @@ class NodeProcess:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait(5)
-        self._err.close()
+        if not self._err.closed:
+            self._err.close()
+            _hold(self.domain, -1)
         return self.proc.returncode
 
 
@@ -156,6 +183,8 @@ class Driver:
         os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
         self.ctx = rclpy.Context()
         rclpy.init(context=self.ctx, domain_id=domain)
+        self.domain = domain
+        _hold(domain, 1)
         self.node = rclpy.create_node("fto_test_driver", context=self.ctx)
         self.lock = threading.Lock()
         self.received: dict[str, list] = {}
@@ -206,6 +235,7 @@ class Driver:
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.ctx)
         self.thread.join(5)
+        _hold(self.domain, -1)
         if self._env_before is None:
             os.environ.pop("ROS_AUTOMATIC_DISCOVERY_RANGE", None)
         else:
@@ -613,10 +643,10 @@ def test_joint_states_time_jump_counted_once_and_bad_stamps(tmp_path, plant):
         for k in range(300):                       # normal running
             send(k, base + k * 10**6, base + k * 10**6)
             _pace(k, t0, 500.0)
-        # a stamp 5 s in the future of the node clock is refused
+        # a stamp 5 s ahead of /clock: on sim time the clock may lag the data, so it is not
+        # judged against it; the runner holds it (a gap), and the next sample, continuing
+        # neither timeline... (below) shows it was junk: it never reaches the estimate
         send(300, base + 5 * 10**9, None)
-        driver.status_where(lambda s: _count(s, "rejected: future_stamp") == 1, 10,
-                            "'future_stamp' counted", node)
         # stamps jump back 3 s first, /clock follows 20 samples later
         back = base - 3 * 10**9
         t0 = time.monotonic()
@@ -627,6 +657,9 @@ def test_joint_states_time_jump_counted_once_and_bad_stamps(tmp_path, plant):
         st = driver.status_where(lambda s: _count(s, "samples accepted") >= 550, 10,
                                  "the samples after the jump", node)
         assert _count(st, "restarts: time_jump") == 1, st
+        assert _count(st, "restarts: gap") == 0, st                  # the 5 s stamp: junk
+        assert _count(st, "rejected: stamp_jump_unconfirmed") == 1, st
+        assert "rejected: future_stamp" not in st["values"], st
         # and the other order: /clock first, stamps follow
         back2 = back - 3 * 10**9
         t0 = time.monotonic()
@@ -775,4 +808,5 @@ def test_plant_block_node_derives_again_on_a_runtime_change(tmp_path):
         node.check_alive()
     finally:
         driver.close()
-    assert node.stop() == 0, node.log()
+        code = node.stop()
+    assert code == 0, node.log()
