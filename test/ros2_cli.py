@@ -2,7 +2,7 @@
 
 The command line exists neither on PyPI nor in Debian; a folder of its Jazzy sources with an
 install script (README.md there) is looked for in FTO_ROS2_TOOLS, else <repo>/../shared/ros2-tools,
-else /work/shared/ros2-tools.  Its install.sh puts `ros2`, launch and launch_ros on top of the
+else <repo>/../../shared/ros2-tools (a git worktree one folder further down).  Its install.sh puts `ros2`, launch and launch_ros on top of the
 venv's rclpy, here into <venv>/ros2-tools: kept with the venv (the script returns at once once
 done), so CI installs it once per venv, ~1 min.  A test that needs it skips, naming the folders
 looked in, where none exists (a user's clone without it).
@@ -35,9 +35,11 @@ EXECUTABLES = ("observer_node", "managed_observer_node")
 
 
 def candidates() -> list[Path]:
+    """FTO_ROS2_TOOLS, else shared/ros2-tools beside the clone, or beside the folder of a
+    git worktree (worktrees/<name> next to shared/)."""
     env = os.environ.get("FTO_ROS2_TOOLS")
     return ([Path(env)] if env else []) + [ROOT.parent / "shared" / "ros2-tools",
-                                           Path("/work/shared/ros2-tools")]
+                                           ROOT.parent.parent / "shared" / "ros2-tools"]
 
 
 @lru_cache(maxsize=None)

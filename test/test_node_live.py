@@ -368,6 +368,34 @@ def test_bad_params_file_exits_2_with_one_line(tmp_path, edit, names):
     assert "fto_ros: bad parameter:" in lines[0] and f"'{names}'" in lines[0], out
 
 
+@pytest.mark.slow
+def test_command_line_p_wins_over_the_params_files(tmp_path):
+    """Was: `-p single_delay.tau:=-1.0` before the params files was silently ignored (their
+    node-specific block outranks -p in rcl when it comes later).  -p wins in any order: a bad
+    value is refused in one line, a good one is what the node runs with."""
+    plant, tuning = ROOT / "config" / "dc_motor_plant.yaml", ROOT / "config" / "dc_motor_single_delay.yaml"
+    files = ["--params-file", str(plant), "--params-file", str(tuning)]
+    for order in (["-p", "single_delay.tau:=-1.0", *files], [*files, "-p", "single_delay.tau:=-1.0"]):
+        cmd = [sys.executable, "-m", "fto_ros.nodes.observer_node", "--ros-args", *order]
+        res = subprocess.run(cmd, cwd=ROOT, env=_ros_env(_domain(18), tmp_path),
+                             capture_output=True, text=True, timeout=60)
+        out = (res.stdout + res.stderr).strip()
+        assert res.returncode == 2 and len(out.splitlines()) == 1, out
+        assert "'single_delay.tau'" in out and "-1.0" in out, out
+    domain = _domain(19)
+    node = NodeProcess(tmp_path, domain, None, "-p", "single_delay.tau:=0.05",
+                       "-p", "diagnostics.period:=0.2", *files)
+    driver = Driver(domain, outputs=())
+    try:
+        st = driver.wait_for(driver.last_status, 60, "the first /diagnostics", node)
+        assert st["values"]["tau (guaranteed convergence time, s)"] == "0.05", st["values"]
+        assert st["values"]["observer"] == "single_delay"
+    finally:
+        driver.close()
+        code = node.stop()
+    assert code == 0, node.log()
+
+
 def test_help_prints_usage():
     res = subprocess.run([sys.executable, "-m", "fto_ros.nodes.observer_node", "--help"], cwd=ROOT,
                          capture_output=True, text=True, timeout=60)
@@ -674,6 +702,47 @@ def test_joint_states_time_jump_counted_once_and_bad_stamps(tmp_path, plant):
     finally:
         driver.close()
         assert node.stop() == 0, node.log()
+
+
+@pytest.mark.slow
+def test_joint_states_on_sim_time_are_never_rejected_for_a_lagging_clock(tmp_path, plant):
+    """Was: with use_sim_time and fto-play --clock, up to 41 % of the samples were rejected as
+    'future_stamp' when /clock lagged the data under load.  /clock comes from the player of
+    the data, so on sim time a stamp is not judged against it: here /clock lags every stamp
+    by 2 s (4x time.future_tolerance) and every sample that arrives is taken."""
+    def edit(p):
+        p["source"] = "joint_states"
+        p["joint_states"].update(input_joints=["joint1"], input_field="effort")
+        p["diagnostics"].update(period=0.2, expected_rate=0.0)
+    domain = _domain(20)
+    node = NodeProcess(tmp_path, domain, _params_file(tmp_path, "lag", edit), "-p", "use_sim_time:=true")
+    driver = Driver(domain, outputs=("estimated_joint_states",))
+    try:
+        driver.wait_connected(node, [driver.pub_js, driver.pub_clock], outputs=("estimated_joint_states",))
+        ts, x, v = plant
+        base = 500 * 10**9
+        clock, msg = Clock(), JointState(name=["joint1"])
+        t0 = time.monotonic()
+        for k in range(len(ts)):
+            clock.clock = _stamp(base + k * 10**6 - 2 * 10**9)
+            driver.pub_clock.publish(clock)
+            msg.header.stamp = _stamp(base + k * 10**6)
+            msg.position, msg.velocity, msg.effort = [x[k, 0]], [0.0], [v[k]]
+            driver.pub_js.publish(msg)
+            _pace(k, t0, 500.0)
+        last = base + (len(ts) - 1) * 10**6
+        driver.wait_for(lambda: driver.has_estimate_after(last - 50 * 10**6), 20,
+                        "the estimates of the last samples", node)
+        st = driver.status_where(lambda s: True, 10, "a status", node)
+        received = _count(st, "messages received: joint_states")
+        assert st["values"]["samples rejected"] == "0", st["values"]
+        assert _count(st, "samples accepted") == received, st["values"]
+        errs = _errors_after(dict(driver.got("estimated_joint_states")), base, plant, T_CONVERGED)
+        assert len(errs) and errs[:, 0].max() < TOL[0], errs.max(axis=0)
+    finally:
+        driver.close()
+        code = node.stop()
+    assert code == 0, node.log()
 
 
 # ------------------------------------------------------------------- fto-play

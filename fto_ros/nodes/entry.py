@@ -165,6 +165,12 @@ def run(make_node: Callable, prog: str, exe: str, managed: bool,
         code = 2
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        # Ctrl-C while the executor builds its wait set: rclpy's signal handler shut the
+        # context down and the KeyboardInterrupt went elsewhere (a __del__), so spin()
+        # raises RCLError 'the given context is not valid': a shutdown too
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             node.destroy_node()
