@@ -40,10 +40,10 @@ from .sources import SECOND_SOURCE, SOURCE_CHANGE, SourceTracker
 _NS = 1_000_000_000
 #: how often at most a summary of rejected samples is logged (s)
 LOG_THROTTLE_S = 5.0
-#: the node's own services keep every request and every response (ROS's default for services
-#: keeps the last 10 of each: of a burst of 1000 ~/reset calls, 20 were answered)
 #: parameters only the outputs use: changed at run time without restarting the observer
 OUTPUT_ONLY = frozenset({"output.frame_id"})
+#: the node's own services keep every request and every response (ROS's default for services
+#: keeps the last 10 of each: of a burst of 1000 ~/reset calls, 20 were answered)
 SERVICE_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
 

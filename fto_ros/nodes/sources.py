@@ -46,8 +46,6 @@ class SourceTracker:
         self._count_publishers = count_publishers
         self.set_limits(max_gap, jump_threshold)
         self.lost = 0               # sequence numbers of the owner never seen
-        self.second = 0             # messages of another source
-        self.changes = 0            # owner changes while another source was there
         self._seq = 0               # the owner's last sequence number (0: no owner yet)
         self._t = 0                 # ... its time (ns)
         self._steady = 0.0          # ... when it was last taken (monotonic s)
@@ -84,10 +82,8 @@ class SourceTracker:
             self._take(seq, t_ns)
             return None
         if time.monotonic() - self._steady > self._silence:
-            self.changes += 1
             self._take(seq, t_ns)
             return SOURCE_CHANGE
-        self.second += 1
         return SECOND_SOURCE
 
     def _take(self, seq: int, t_ns: int) -> None:
