@@ -139,15 +139,20 @@ def _params_file(tmp: Path, name: str, edit=None) -> Path:
 
 
 class NodeProcess:
-    """The observer node as a subprocess; stop() sends SIGINT like Ctrl-C."""
+    """The observer node (or a command that starts it) as a subprocess; stop() sends SIGINT
+    like Ctrl-C."""
 
     def __init__(self, tmp: Path, domain: int, params: Path | None, *extra: str,
-                 module: str = "fto_ros.nodes.observer_node"):
+                 module: str = "fto_ros.nodes.observer_node", cmd: list[str] | None = None,
+                 env: dict | None = None):
+        """``python -m MODULE --ros-args [--params-file PARAMS] EXTRA...``, or ``cmd`` (e.g.
+        `ros2 launch ...`) with ``env``."""
         self.err_path = tmp / f"node_{domain}_{int(time.monotonic() * 1e3)}.log"
         self._err = open(self.err_path, "w+")
-        cmd = [sys.executable, "-m", module, "--ros-args",
-               *(("--params-file", str(params)) if params is not None else ()), *extra]
-        self.proc = subprocess.Popen(cmd, cwd=ROOT, env=_ros_env(domain, tmp),
+        if cmd is None:
+            cmd = [sys.executable, "-m", module, "--ros-args",
+                   *(("--params-file", str(params)) if params is not None else ()), *extra]
+        self.proc = subprocess.Popen(cmd, cwd=ROOT, env=env or _ros_env(domain, tmp),
                                      stdout=self._err, stderr=subprocess.STDOUT)
         self.domain = domain
         _hold(domain, 1)
@@ -165,7 +170,7 @@ class NodeProcess:
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGINT)
             try:
-                self.proc.wait(15)
+                self.proc.wait(30)
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait(5)
@@ -285,6 +290,18 @@ class Driver:
                         return st
             return None
         return self.wait_for(check, timeout, what, node)
+
+    def wait_quiet(self, node, key: str, timeout: float = 30.0) -> dict:
+        """Wait until the node has taken everything sent: its count ``key`` (e.g. 'messages
+        received: joint_states') the same in two statuses in a row; that status."""
+        seen = [None]
+
+        def quiet():
+            st = self.status_where(lambda s: True, 10, "a status", node)
+            same = seen[0] is not None and st["values"].get(key) == seen[0]["values"].get(key)
+            seen[0] = st
+            return st if same else None
+        return self.wait_for(quiet, timeout, f"'{key}' to stop growing", node)
 
     def call(self, srv_type, name: str, request, timeout: float = 10.0):
         client = self.node.create_client(srv_type, name)

@@ -5,8 +5,6 @@ Processes as in test_node_live.py (LOCALHOST discovery, a domain id of the test'
 CLI never starts a ros2 daemon (--no-daemon)."""
 from __future__ import annotations
 
-import signal
-import subprocess
 from pathlib import Path
 
 import pytest
@@ -44,34 +42,9 @@ def _env(domain: int, tmp: Path, prefix: Path) -> dict:
     return ros2_cli.env_for(_ros_env(domain, tmp), prefix)
 
 
-class Launch:
-    """`ros2 launch ARGS` as a subprocess; stop() is Ctrl-C."""
-
-    def __init__(self, env: dict, tmp: Path, *args: str):
-        self.log_path = tmp / "launch.log"
-        self._log = open(self.log_path, "w+")
-        self.proc = subprocess.Popen(ros2_cli.argv("launch", *args), env=env, cwd=ROOT,
-                                     stdout=self._log, stderr=subprocess.STDOUT)
-
-    def log(self) -> str:
-        if not self._log.closed:
-            self._log.flush()
-        return self.log_path.read_text()
-
-    def check_alive(self) -> None:
-        if self.proc.poll() is not None:
-            pytest.fail(f"ros2 launch exited with {self.proc.returncode}:\n{self.log()}")
-
-    def stop(self) -> int:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGINT)
-            try:
-                self.proc.wait(30)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5)
-        self._log.close()
-        return self.proc.returncode
+def _launch(env: dict, tmp: Path, domain: int, *args: str) -> NodeProcess:
+    """`ros2 launch ARGS` as a subprocess (stop() is Ctrl-C)."""
+    return NodeProcess(tmp, domain, None, cmd=ros2_cli.argv("launch", *args), env=env)
 
 
 def _default_config(path: Path) -> Path:
@@ -103,7 +76,7 @@ def test_every_launch_file_starts_its_observer_under_ros2_launch(tmp_path, prefi
     """`ros2 launch fto_ros FILE` starts the node, which reports its observer on /diagnostics;
     Ctrl-C ends everything cleanly (exit 0, no traceback)."""
     domain = _domain(61)
-    launch = Launch(_env(domain, tmp_path, prefix), tmp_path, "fto_ros", *args)
+    launch = _launch(_env(domain, tmp_path, prefix), tmp_path, domain, "fto_ros", *args)
     driver = Driver(domain, outputs=())
     try:
         st = driver.wait_for(driver.last_status, START_S, f"the node of {args[0]}", launch)
@@ -197,8 +170,8 @@ def test_ros2_lifecycle_drives_the_managed_node_and_configure_after_cleanup(tmp_
     env = _env(domain, tmp_path, prefix)
     params = _params_file(tmp_path, "managed", lambda p: p["diagnostics"].update(
         period=0.2, expected_rate=0.0))
-    launch = Launch(env, tmp_path, "fto_ros", "observer.launch.py", f"params_file:={params}",
-                    "managed:=true", "autostart:=false")
+    launch = _launch(env, tmp_path, domain, "fto_ros", "observer.launch.py",
+                     f"params_file:={params}", "managed:=true", "autostart:=false")
     driver = Driver(domain)
     try:
         driver.wait_for(lambda: driver.node.count_publishers(NODE + "/transition_event") > 0,
@@ -256,19 +229,21 @@ def test_state_stamped_frame_id_changes_at_run_time(tmp_path, prefix):
         import time
         base = time.time_ns() - 10**9
         m = JointState(name=["joint1"], position=[0.5], velocity=[0.0], effort=[2.0])
+        sent = [0]
 
-        def feed(k0, n):
-            for k in range(k0, k0 + n):
-                ns = base + k * 10**6
+        def feed(n):                        # the next n samples, 2 ms apart
+            for _ in range(n):
+                ns = base + sent[0] * 2 * 10**6
                 m.header.stamp.sec, m.header.stamp.nanosec = ns // 10**9, ns % 10**9
                 driver.pub_js.publish(m)
+                sent[0] += 1
                 time.sleep(0.002)
-        driver.wait_for(lambda: (feed(0, 50), frames)[1], 20, "stamped estimates", node)
+        driver.wait_for(lambda: (feed(20), frames)[1], 30, "stamped estimates", node)
         assert set(frames) == {"before"}
         res = ros2_cli.run(env, "param", "set", NODE, "output.frame_id", "after")
         assert "Set parameter successful" in res.stdout, res.stdout
         n = len(frames)
-        driver.wait_for(lambda: (feed(1000, 20), "after" in frames[n:])[1], 20, "the new frame", node)
+        driver.wait_for(lambda: (feed(20), "after" in frames[n:])[1], 30, "the new frame", node)
         st = driver.status_where(lambda s: True, 10, "a status", node)
         assert "restarts: reconfigure" not in st["values"], st["values"]
         got = ros2_cli.run(env, "param", "get", NODE,
