@@ -5,7 +5,7 @@ it declares are exactly the ones docs/ros_interface.md documents, with the same 
 and choices; the example files include observer.launch.py with a params file that exists,
 and reach every committed config; the executables they start are console scripts; a pip
 install puts them under share/fto_ros/launch (the colcon install is checked in
-test_colcon_build.py). What still needs a ROS install is `ros2 launch` itself.
+test_colcon_build.py). test_ros2_cli.py runs each of them with the real `ros2 launch`.
 """
 from __future__ import annotations
 

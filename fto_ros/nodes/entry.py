@@ -107,7 +107,9 @@ def command_line_params_win(args: list[str], folder: str) -> list[str]:
             in_ros = False
         elif in_ros and a in ("-p", "--param") and i + 1 < len(args):
             name, sep, value = args[i + 1].partition(":=")
-            if sep and name and "\n" not in value:
+            # (an empty value or a comment: rcl itself refuses or unsets it, left to it)
+            if sep and name and value.strip() and not value.lstrip().startswith("#") \
+                    and "\n" not in value:
                 pairs.append((name, value))
     if not pairs:
         return args
