@@ -5,7 +5,8 @@ The node runs as a subprocess (`python -m fto_ros.nodes.observer_node --ros-args
 node of its own whose executor spins in a background thread.  Every process gets
 ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and a domain id of its own (derived from the
 pytest pid, 10..15 away from the one scripts/run-tests exports and from the colcon
-test's +50), so no traffic leaves the machine and parallel runs do not meet.
+test's +50; or, with FTO_TEST_DOMAIN_IDS=LO-HI, a free id of that range), so no traffic
+leaves the machine and parallel runs do not meet.
 
 The plant is the DC-motor manipulator of config/dc_motor_luenberger.yaml
 (q' = q_dot, q_dot' = 15 I - 35 sin q - q_dot, I' = 40 V - 36.4 q_dot - 200 I,
