@@ -14,6 +14,7 @@ import pytest
 from fto_ros.bag import (BagError, BagReader, BagWriter, bag_info, list_topics,
                          read_messages)
 from fto_ros.cli import simulate as cli
+from fto_ros.core.output_dir import OutputError, OutputExists
 from fto_ros.models import get_model
 from fto_ros.models.simulate import simulate, uniform_grid
 
@@ -194,7 +195,7 @@ def test_corrupt_chunk_and_metadata(tmp_path):
 def test_existing_output_and_overwrite(tmp_path):
     path = tmp_path / "bag"
     write_sample_bag(path)
-    with pytest.raises(BagError, match="exists already") as exc:
+    with pytest.raises(OutputExists, match="exists already") as exc:
         BagWriter(path).open()
     assert str(path) in str(exc.value)
     with BagWriter(path, overwrite=True) as bag:
@@ -204,7 +205,7 @@ def test_existing_output_and_overwrite(tmp_path):
     src = tmp_path / "src"
     (src / "pkg").mkdir(parents=True)
     (src / "setup.py").write_text("")
-    with pytest.raises(BagError, match="refusing to overwrite"):
+    with pytest.raises(OutputError, match="refusing to replace"):
         BagWriter(src, overwrite=True).open()
     assert (src / "setup.py").exists()
     # an empty directory is fine
@@ -340,8 +341,8 @@ def test_simulate_cli_existing_output(tmp_path, capsys):
     (out / "keep.txt").write_text("x")
     assert run_cli("dc_motor", "--out", out, "--duration", 0.01) == 1
     assert "exists already" in capsys.readouterr().err
-    assert run_cli("dc_motor", "--out", out, "--duration", 0.01, "--overwrite") == 1
-    assert "refusing to overwrite" in capsys.readouterr().err
+    assert run_cli("dc_motor", "--out", out, "--duration", 0.01, "--overwrite") == 2
+    assert "refusing to replace" in capsys.readouterr().err
     assert (out / "keep.txt").exists()
     shutil.rmtree(out)
     assert run_cli("dc_motor", "--out", out, "--duration", 0.01) == 0

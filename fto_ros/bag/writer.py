@@ -21,6 +21,7 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 import numpy as np
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 
+from ..core.output_dir import clear_output, mark_output
 from .reader import BagError, jazzy_typestore
 
 FLOAT64_MULTI_ARRAY = "std_msgs/msg/Float64MultiArray"
@@ -33,9 +34,6 @@ ROS_DISTRO = "jazzy"
 
 #: DiagnosticStatus level names -> values (diagnostic_msgs/msg/DiagnosticStatus)
 LEVELS = {"OK": 0, "WARN": 1, "ERROR": 2, "STALE": 3}
-
-#: files a bag directory may hold; ``overwrite=True`` only deletes such directories
-_BAG_FILE_SUFFIXES = (".mcap", ".db3", ".yaml", ".zstd", ".json", ".png", ".csv")
 
 
 def _ns(value: Any, name: str) -> int:
@@ -53,38 +51,36 @@ def _ns(value: Any, name: str) -> int:
     return out
 
 
-def _safe_to_remove(path: Path) -> bool:
-    """True if ``path`` is empty or looks like a bag directory (no subdirectories, only bag-ish files)."""
-    entries = list(path.iterdir())
-    if not entries:
-        return True
-    if not (path / "metadata.yaml").is_file() and not any(p.suffix == ".mcap" for p in entries):
-        return False
-    return all(p.is_file() and p.suffix in _BAG_FILE_SUFFIXES for p in entries)
-
-
 class BagWriter:
     """A rosbag2 (MCAP, version 9) bag being written; use as a context manager.
 
     Args:
         path: bag directory to create.
-        overwrite: if the path exists, remove it first (only if it is a file, an
-            empty directory or a bag directory; anything else raises BagError so
-            that a wrong ``--out`` cannot delete a source tree).  Without it an
-            existing path raises BagError.
+        overwrite: if the path exists, replace it, but only if it is an empty folder
+            or a bag fto_ros wrote (:mod:`fto_ros.core.output_dir`: anything else, a
+            file, a device, a symlink, a folder holding other things, raises
+            OutputError and nothing is removed).  Without it an existing path raises
+            OutputExists.
+        inputs: paths the bag must not replace, be inside of or contain (the input
+            bag and params files of the command writing it): OutputError.
         custom_data: key -> string pairs stored in metadata.yaml ``custom_data``.
         compress: zstd-compress the MCAP chunks (MCAP's own chunk compression,
             what ``ros2 bag record --storage-preset-profile zstd_fast`` does;
             metadata.yaml shows no compression mode and every MCAP reader
             handles it).  Bags of smooth simulated signals shrink ~3-5x.
 
-    If the ``with`` block raises, the half-written bag directory is removed.
+    The bag directory gets fto_ros's output marker, so that a later ``overwrite``
+    recognises it.  If the ``with`` block raises, the half-written bag directory is
+    removed.
     """
 
     def __init__(self, path: str | os.PathLike, *, overwrite: bool = False,
-                 custom_data: Mapping[str, str] | None = None, compress: bool = True):
+                 custom_data: Mapping[str, str] | None = None, compress: bool = True,
+                 inputs: Iterable[str | os.PathLike] = ()):
+        self._path_arg = path
         self.path = Path(path)
         self.overwrite = overwrite
+        self.inputs = tuple(inputs)
         self.compress = compress
         self.typestore = jazzy_typestore()
         self._types = self.typestore.types
@@ -111,23 +107,10 @@ class BagWriter:
 
     # -- lifecycle --------------------------------------------------------------------
     def open(self) -> "BagWriter":
-        """Create the bag directory (removing an old one if ``overwrite``)."""
+        """Create the bag directory (replacing an old bag if ``overwrite``)."""
         if self._writer is not None:
             raise BagError(f"{self.path}: bag is already open")
-        if self.path.exists() or self.path.is_symlink():
-            if not self.overwrite:
-                raise BagError(f"{self.path}: output exists already "
-                               f"(remove it or pass overwrite=True / --overwrite)")
-            try:
-                if self.path.is_dir() and not self.path.is_symlink():
-                    if not _safe_to_remove(self.path):
-                        raise BagError(f"{self.path}: refusing to overwrite: the directory "
-                                       f"is not a bag (it holds other files or folders)")
-                    shutil.rmtree(self.path)
-                else:
-                    self.path.unlink()
-            except OSError as err:
-                raise BagError(f"{self.path}: cannot remove the existing output: {err}") from err
+        clear_output(self._path_arg, "bag", overwrite=self.overwrite, inputs=self.inputs)
         if not self.path.parent.is_dir():
             raise BagError(f"{self.path}: parent directory {self.path.parent} does not exist")
         try:
@@ -137,6 +120,7 @@ class BagWriter:
             for key, value in self._custom.items():
                 writer.set_custom_data(key, value)
             writer.open()
+            mark_output(self.path, "bag")
         except Exception as err:
             raise BagError(f"{self.path}: cannot create bag: {err}") from err
         self._writer = writer

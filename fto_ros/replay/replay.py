@@ -46,8 +46,8 @@ from typing import Any
 
 import numpy as np
 
-from ..bag import BagError
 from ..bag.reader import jazzy_typestore
+from ..core.output_dir import check_output
 from ..observers.base import Observer
 from ..runner.params_file import load_params_files
 from ..runner.runner import LEVEL_NAMES, Runner
@@ -78,7 +78,9 @@ def replay(bag_path, params_path, out_dir, *, node_name: str | None = None,
             files override earlier ones, as several ``--params-file`` do); the
             blocks for ``node_name`` (and ``/**``) are used.
         out_dir: output bag directory; also receives ``metrics.json`` and
-            ``replay.png``.  Must not exist unless ``overwrite``.
+            ``replay.png``.  Must not exist unless ``overwrite``, and then it must be
+            an output fto_ros wrote (:mod:`fto_ros.core.output_dir`); never the input
+            bag, inside it or a folder holding it.
         node_name: node name for the params block and the output topic
             namespace (default ``observer_node``).
         progress: draw a progress bar on stderr (only on a terminal, and only
@@ -95,8 +97,9 @@ def replay(bag_path, params_path, out_dir, *, node_name: str | None = None,
             measurement samples, or none at all: a bag of junk is not a result.
 
     Returns the metrics (also written to ``metrics.json``).
-    Raises ConfigError (params), BagError (bags, existing output), ReplayError
-    (anything else that stops the replay), each with a one-line message.
+    Raises ConfigError (params), OutputError (an output path that is refused),
+    OutputExists (an existing output without ``overwrite``), BagError (bags),
+    ReplayError (anything else that stops the replay), each with a one-line message.
     """
     if isinstance(tolerance, bool) or not isinstance(tolerance, (int, float)) \
             or not (math.isfinite(tolerance) and tolerance > 0):
@@ -108,14 +111,14 @@ def replay(bag_path, params_path, out_dir, *, node_name: str | None = None,
         raise ReplayError(f"min_accepted must be a fraction in [0, 1], got {min_accepted!r}")
     params_paths = ([Path(p) for p in params_path] if isinstance(params_path, (list, tuple))
                     else [Path(params_path)])
-    bag_path, out_dir = Path(bag_path), Path(out_dir)
+    inputs = (bag_path, *params_paths)
+    bag_path = Path(bag_path)
     params_path = params_paths[-1]          # the tuning file, in titles and names
     fqn = node_fqn(node_name)
     runner = Runner(load_params_files(params_paths, node_name, overrides))
     jazzy_typestore()  # one-time library set-up (~50 ms on first use), not part of the replay
     obs = runner.observer
-    if (out_dir.exists() or out_dir.is_symlink()) and not overwrite:
-        raise BagError(f"{out_dir}: output exists already (remove it or pass --overwrite)")
+    out_dir = check_output(out_dir, "bag", overwrite=overwrite, inputs=inputs)
     custom = {"fto_ros.replay.bag": str(bag_path),
               "fto_ros.replay.params": ", ".join(str(p) for p in params_paths),
               "fto_ros.replay.observer": obs.TYPE}
@@ -124,7 +127,7 @@ def replay(bag_path, params_path, out_dir, *, node_name: str | None = None,
     gc_was_enabled = gc.isenabled()
     gc.disable()
     try:
-        run = _run(runner, bag_path, out_dir, fqn, overwrite, progress, custom)
+        run = _run(runner, bag_path, out_dir, fqn, overwrite, progress, custom, inputs)
     finally:
         if gc_was_enabled:
             gc.enable()

@@ -88,8 +88,9 @@ class _Run:
 
 
 def _run(runner: Runner, bag_path: Path, out_dir: Path, fqn: str, overwrite: bool,
-         progress: bool, custom: dict[str, str]) -> _Run:
-    """Read the bag, drive the runner, write the output bag (the timed part)."""
+         progress: bool, custom: dict[str, str], protect: tuple = ()) -> _Run:
+    """Read the bag, drive the runner, write the output bag (the timed part); the output
+    bag never replaces, lies inside or holds a path of ``protect`` (the inputs)."""
     settings, obs = runner.settings, runner.observer
     r = _Run()
     wall0 = time.perf_counter()
@@ -163,7 +164,7 @@ def _run(runner: Runner, bag_path: Path, out_dir: Path, fqn: str, overwrite: boo
     runner_s = 0.0
     Path(out_dir).parent.mkdir(parents=True, exist_ok=True)   # --out a/b/c: make a/b
     wall_loop0 = time.perf_counter()
-    with BagWriter(out_dir, overwrite=overwrite, custom_data=custom) as bag:
+    with BagWriter(out_dir, overwrite=overwrite, custom_data=custom, inputs=protect) as bag:
         # the input topics, copied as read (log times as in the input bag): the output bag
         # holds what the estimates were estimated from, and plays on its own
         types = {"clock": CLOCK, "joints": JOINT_STATE}
