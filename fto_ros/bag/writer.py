@@ -1,10 +1,13 @@
-"""Write rosbag2 bags (MCAP storage, metadata version 9 = ROS 2 Jazzy) with rosbags.
+"""Write rosbag2 bags (MCAP storage, metadata version 9 = ROS 2 Jazzy).
 
-Messages are given as plain Python values; the writer builds and serializes the
-ROS 2 Jazzy messages itself.  The log time of every message is the ``t_ns``
-argument (integer nanoseconds, >= 0), normally the sample time.  Connections
-(topics) are created on first use.  Bags written here are read by
-``ros2 bag info/play`` on a ROS 2 Jazzy install.
+Messages are given as plain Python values (the writer builds and serializes the ROS 2
+Jazzy messages itself with rosbags' type store), as ready CDR bytes, or as blocks of many
+messages of one topic at once (:meth:`BagWriter.write_block`: the replay's fast path).
+The log time of every message is the ``t_ns`` argument (integer nanoseconds, >= 0),
+normally the sample time.  Connections (topics) are created on first use.  The MCAP file
+and metadata.yaml are laid out as rosbags' writer lays them out
+(:mod:`fto_ros.bag.mcap_write`); bags written here are read by ``ros2 bag info/play``
+on a ROS 2 Jazzy install.
 
 >>> with BagWriter("/tmp/example", overwrite=True) as bag:
 ...     bag.clock(0)
@@ -19,9 +22,10 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
-from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 
-from ..core.output_dir import clear_output, mark_output
+from .. import __version__
+from ..core.output_dir import create_output
+from .mcap_write import McapBag
 from .reader import BagError, jazzy_typestore
 
 FLOAT64_MULTI_ARRAY = "std_msgs/msg/Float64MultiArray"
@@ -71,7 +75,7 @@ class BagWriter:
 
     The bag directory gets fto_ros's output marker, so that a later ``overwrite``
     recognises it.  If the ``with`` block raises, the half-written bag directory is
-    removed.
+    removed.  ``counts`` is topic -> messages written.
     """
 
     def __init__(self, path: str | os.PathLike, *, overwrite: bool = False,
@@ -85,7 +89,7 @@ class BagWriter:
         self.typestore = jazzy_typestore()
         self._types = self.typestore.types
         self._custom: dict[str, str] = {}
-        self._writer: Writer | None = None
+        self._writer: McapBag | None = None
         for key, value in (custom_data or {}).items():
             self.set_custom_data(key, value)
         self._conns: dict[str, Any] = {}
@@ -110,20 +114,16 @@ class BagWriter:
         """Create the bag directory (replacing an old bag if ``overwrite``)."""
         if self._writer is not None:
             raise BagError(f"{self.path}: bag is already open")
-        clear_output(self._path_arg, "bag", overwrite=self.overwrite, inputs=self.inputs)
         if not self.path.parent.is_dir():
             raise BagError(f"{self.path}: parent directory {self.path.parent} does not exist")
+        create_output(self._path_arg, "bag", overwrite=self.overwrite, inputs=self.inputs)
         try:
-            writer = Writer(self.path, version=9, storage_plugin=StoragePlugin.MCAP)
-            if self.compress:
-                writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
-            for key, value in self._custom.items():
-                writer.set_custom_data(key, value)
-            writer.open()
-            mark_output(self.path, "bag")
-        except Exception as err:
+            self._writer = McapBag(self.path, compress=self.compress,
+                                   library=f"fto_ros-{__version__}", ros_distro=ROS_DISTRO,
+                                   custom_data=self._custom)
+        except OSError as err:
+            shutil.rmtree(self.path, ignore_errors=True)
             raise BagError(f"{self.path}: cannot create bag: {err}") from err
-        self._writer = writer
         return self
 
     def close(self) -> None:
@@ -135,11 +135,6 @@ class BagWriter:
             writer.close()
         except Exception as err:
             raise BagError(f"{self.path}: cannot finish bag: {err}") from err
-        # rosbags writes its own name as the distribution; these bags are ROS 2 Jazzy's
-        meta = self.path / "metadata.yaml"
-        text = meta.read_text()
-        if "ros_distro: rosbags" in text:
-            meta.write_text(text.replace("ros_distro: rosbags", f"ros_distro: {ROS_DISTRO}", 1))
 
     def abort(self) -> None:
         """Stop writing and delete the half-written bag directory."""
@@ -168,41 +163,60 @@ class BagWriter:
                            f"got {key!r}: {type(value).__name__}")
         self._custom[key] = value
         if self._writer is not None:
-            self._writer.set_custom_data(key, value)
+            self._writer.custom_data[key] = value
 
     # -- low level --------------------------------------------------------------------
-    def _connection(self, topic: str, msgtype: str):
-        conn = self._conns.get(topic)
-        if conn is not None:
+    def _connection(self, topic: str, msgtype: str) -> int:
+        """The channel id of ``topic`` (created on first use) after checking its type."""
+        cid = self._conns.get(topic)
+        if cid is not None:
             if self._conn_types[topic] != msgtype:
                 raise BagError(f"{self.path}: topic {topic} already has type "
                                f"{self._conn_types[topic]}, cannot write {msgtype}")
-            return conn
+            return cid
         if self._writer is None:
             raise BagError(f"{self.path}: bag is not open (use 'with BagWriter(...)')")
         if not topic.startswith("/"):
             raise BagError(f"{self.path}: topic names must be absolute, got {topic!r}")
         try:
-            conn = self._writer.add_connection(topic, msgtype, typestore=self.typestore)
+            msgdef, _ = self.typestore.generate_msgdef(msgtype, ros_version=2)
+            cid = self._writer.add_connection(topic, msgtype, msgdef,
+                                              self.typestore.hash_rihs01(msgtype))
         except Exception as err:
             raise BagError(f"{self.path}: cannot add topic {topic} ({msgtype}): {err}") from err
-        self._conns[topic] = conn
+        self._conns[topic] = cid
         self._conn_types[topic] = msgtype
         self.counts[topic] = 0
-        return conn
+        return cid
+
+    def connect(self, topic: str, msgtype: str) -> None:
+        """Create ``topic``'s connection now (the order of connections is the order of the
+        topics in metadata.yaml; a connection made mid-bag puts its records there)."""
+        self._connection(topic, msgtype)
+
+    def write_block(self, topic: str, msgtype: str, t_ns, payloads) -> None:
+        """Many messages of one topic at once, in this order: ``t_ns`` (integer ns >= 0,
+        one per message) and their CDR bytes, an (n, L) uint8 matrix (every message L
+        bytes: written with no Python per message) or a sequence of bytes."""
+        cid = self._connection(topic, msgtype)
+        t = np.asarray(t_ns)
+        if t.size and (t.dtype.kind not in "iu" or t.min() < 0):
+            raise BagError(f"{self.path}: {topic}: log times must be integer ns >= 0")
+        if len(payloads) != t.size:
+            raise BagError(f"{self.path}: {topic}: {t.size} log times for {len(payloads)} "
+                           "messages")
+        self._writer.write_block(cid, t, payloads)
+        self.counts[topic] += t.size
 
     def raw_writer(self, topic: str, msgtype: str) -> Callable[[int, bytes], None]:
-        """A fast ``write(t_ns, cdr_bytes)`` for ``topic``: the caller serialises.
-
-        For tight loops (the replay harness writes one message per sample); the
-        topic's connection is created and checked once, here.
-        """
-        conn = self._connection(topic, msgtype)
+        """A ``write(t_ns, cdr_bytes)`` for ``topic``: the caller serialises (the topic's
+        connection is created and checked once, here)."""
+        cid = self._connection(topic, msgtype)
         write = self._writer.write
         counts = self.counts
 
         def write_raw(t_ns: int, data: bytes) -> None:
-            write(conn, t_ns, data)
+            write(cid, t_ns, data)
             counts[topic] += 1
         return write_raw
 
@@ -210,12 +224,12 @@ class BagWriter:
         """Write any rosbags Jazzy message object ``msg`` on ``topic`` at log time ``t_ns``."""
         t = _ns(t_ns, "t_ns")
         msgtype = msg.__msgtype__
-        conn = self._connection(topic, msgtype)
+        cid = self._connection(topic, msgtype)
         try:
             data = self._serialize(msg, msgtype)
         except Exception as err:
             raise BagError(f"{self.path}: cannot serialize {msgtype} for {topic}: {err}") from err
-        self._writer.write(conn, t, data)
+        self._writer.write(cid, t, data)
         self.counts[topic] += 1
 
     def _stamp(self, stamp_ns: int, name: str = "stamp_ns"):
