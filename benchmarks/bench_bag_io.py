@@ -29,7 +29,7 @@ chunk compression):
   metadata.yaml, so no rosbag2 bag).
 
 The fto_ros and rosbags bags are then compared byte for byte (the library name in the
-MCAP header set alike).  With ``--repeat R`` each measurement is the best of R runs, taken
+MCAP header and the YAML emitter set alike).  With ``--repeat R`` each measurement is the best of R runs, taken
 in turn so that a change of load hits every column alike; the load average is printed.
 Columns whose library is not installed are skipped with a note (``pip install mcap
 mcap-ros2-support`` to measure them: they are not fto_ros dependencies).
@@ -310,21 +310,33 @@ def main(argv=None) -> int:
     print(_row("**all bags**", total_n, totals_w, {}))
     same = sum(identical)
     print(f"\nfto_ros's bag equal to rosbags' byte for byte (MCAP and metadata.yaml, the "
-          f"header's library name set alike): {same} of {len(identical)} bags")
+          f"header's library name and the YAML emitter set alike): {same} of "
+          f"{len(identical)} bags")
     print(f"load average after: {os.getloadavg()[0]:.2f}")
     return 0 if same == len(identical) else 1
 
 
+def _ruamel_dump(doc) -> str:
+    import io
+    from ruamel.yaml import YAML          # rosbags' emitter (installed with rosbags)
+    y = YAML(typ="safe")
+    y.default_flow_style = False
+    out = io.StringIO()
+    y.dump(doc, out)
+    return out.getvalue()
+
+
 def _identical(msgs: dict, rows: list, out: Path) -> bool:
-    """The same messages through fto_ros's writer (in rosbags' order, one at a time) and
-    through rosbags': the same bytes?"""
+    """The same messages through fto_ros's writer (in rosbags' order, one at a time, with
+    rosbags' YAML emitter) and through rosbags': the same bytes?"""
     from fto_ros.bag.mcap_write import McapBag
     ts = jazzy_typestore()
     a, b = out.parent / "rosbags" / out.name, out.parent / "fto" / out.name
-    a.parent.mkdir(parents=True)
+    a.parent.mkdir(parents=True, exist_ok=True)
     b.mkdir(parents=True)
     write_rosbags(msgs, rows, a)
-    bag = McapBag(b, library=f"rosbags-{version('rosbags')}", ros_distro="rosbags")
+    bag = McapBag(b, library=f"rosbags-{version('rosbags')}", ros_distro="rosbags",
+                  dump=_ruamel_dump)
     cids = {topic: bag.add_connection(topic, m[0], ts.generate_msgdef(m[0], ros_version=2)[0],
                                       ts.hash_rihs01(m[0])) for topic, m in msgs.items()}
     for t, _k, topic, data in rows:

@@ -34,22 +34,27 @@ CONFIGS = {"luenberger": ["config/dc_motor_plant.yaml", "config/dc_motor_luenber
 
 _CHILD = r"""
 import json, sys, tempfile, os
+import fto_ros
 from fto_ros.replay import replay
 bag, out = sys.argv[1], os.path.join(tempfile.mkdtemp(), "out")
 m = replay(bag, sys.argv[2:], out, plot=False, progress=False)
-print(json.dumps({"timing": m["timing_s"], "samples": m["sample_count"],
+print(json.dumps({"code": fto_ros.__file__, "timing": m["timing_s"], "samples": m["sample_count"],
                   "duration": m["bag_duration_s"], "metrics": {k: m[k] for k in (
                       "samples_accepted", "errors", "convergence_time_s", "rejected_by_reason")}}))
 """
 
 
-def _run(pythonpath: str | None, bag: str, params: list[str]) -> dict:
-    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    if pythonpath:
-        env["PYTHONPATH"] = pythonpath + os.pathsep + env.get("PYTHONPATH", "")
-    res = subprocess.run([sys.executable, "-c", _CHILD, bag, *params], cwd=ROOT, env=env,
+def _run(code: str, bag: str, params: list[str]) -> dict:
+    """One replay in a fresh process by the fto_ros package under ``code`` (run from that
+    folder: ``python -c`` puts the working directory first on sys.path)."""
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONPATH=code)
+    res = subprocess.run([sys.executable, "-c", _CHILD, str(ROOT / bag),
+                          *(str(ROOT / p) for p in params)], cwd=code, env=env,
                          capture_output=True, text=True, check=True)
-    return json.loads(res.stdout.strip().splitlines()[-1])
+    out = json.loads(res.stdout.strip().splitlines()[-1])
+    if out.pop("code") != str(Path(code) / "fto_ros" / "__init__.py"):
+        raise RuntimeError(f"the replay did not run the code under {code}")
+    return out
 
 
 def _split(r: dict) -> dict:
@@ -80,7 +85,7 @@ def main(argv=None) -> int:
             best: dict[str, dict | None] = {"before": None, "after": None}
             same = True
             for _ in range(args.repeat):
-                for side, path in (("before", tmp), ("after", None)):
+                for side, path in (("before", tmp), ("after", str(ROOT))):
                     r = _run(path, args.bag, params)
                     if best[side] is None or r["timing"]["replay_total"] < \
                             best[side]["timing"]["replay_total"]:

@@ -420,10 +420,22 @@ def _write_sequence(rng, n_steps: int = 40):
     return seq
 
 
-@pytest.mark.parametrize("compress", [True, False])
-def test_writer_lays_out_the_bag_byte_for_byte_as_rosbags(tmp_path, compress):
+def ruamel_dump(doc) -> str:
+    """YAML as rosbags dumps it (ruamel.yaml, installed with rosbags)."""
+    import io
+    from ruamel.yaml import YAML
+    y = YAML(typ="safe")
+    y.default_flow_style = False
+    out = io.StringIO()
+    y.dump(doc, out)
+    return out.getvalue()
+
+
+@pytest.mark.parametrize("compress,background", [(True, False), (False, False), (True, True)])
+def test_writer_lays_out_the_bag_byte_for_byte_as_rosbags(tmp_path, compress, background):
     """The same messages, in the same order, through rosbags' writer (one at a time) and
-    fto_ros's (blocks at once): the same .mcap and metadata.yaml, byte for byte."""
+    fto_ros's (blocks at once), given rosbags' YAML emitter: the same .mcap and
+    metadata.yaml, byte for byte."""
     from importlib.metadata import version
     from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
     from fto_ros.bag.mcap_write import McapBag
@@ -442,7 +454,8 @@ def test_writer_lays_out_the_bag_byte_for_byte_as_rosbags(tmp_path, compress):
     w.open()
     conns = [w.add_connection(t, m, typestore=ts) for t, m in topics]
     bag = McapBag(ours, compress=compress, library=f"rosbags-{version('rosbags')}",
-                  ros_distro="rosbags", custom_data=custom)
+                  ros_distro="rosbags", custom_data=custom, dump=ruamel_dump,
+                  background=background)
     cids = [bag.add_connection(t, m, ts.generate_msgdef(m, ros_version=2)[0], ts.hash_rihs01(m))
             for t, m in topics]
     for kind, i, t, payloads in _write_sequence(np.random.default_rng(3)):
@@ -458,6 +471,37 @@ def test_writer_lays_out_the_bag_byte_for_byte_as_rosbags(tmp_path, compress):
     assert (ours / "bag.mcap").stat().st_size > 3 * (1 << 20)       # several chunks
     assert (ours / "bag.mcap").read_bytes() == (ref / "bag.mcap").read_bytes()
     assert (ours / "metadata.yaml").read_text() == (ref / "metadata.yaml").read_text()
+
+
+def test_metadata_says_what_rosbags_would_say(tmp_path):
+    """BagWriter's metadata.yaml (libyaml's emitter) holds the values rosbags' writer
+    writes for the same bag (ros_distro apart), and the MCAP's copy of it too."""
+    from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+    from fto_ros.bag.reader import jazzy_typestore
+    import yaml
+    ours = tmp_path / "ours"
+    write_sample_bag(ours)
+    ts = jazzy_typestore()
+    ref = tmp_path / "ref"
+    w = Writer(ref, version=9, storage_plugin=StoragePlugin.MCAP)
+    w.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+    for k, v in {"k": "v", "json": '{"a": 1}'}.items():
+        w.set_custom_data(k, v)
+    w.open()
+    conns = {}
+    for topic, t, msg in read_messages(ours):
+        if topic not in conns:
+            conns[topic] = w.add_connection(topic, msg.__msgtype__, typestore=ts)
+        w.write(conns[topic], t, ts.serialize_cdr(msg, msg.__msgtype__))
+    w.close()
+    a = yaml.safe_load((ours / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    b = yaml.safe_load((ref / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert a.pop("ros_distro") == "jazzy" and b.pop("ros_distro") == "rosbags"
+    for meta in (a, b):
+        meta["relative_file_paths"] = meta["files"][0]["path"] = "x.mcap"
+    assert a == b
+    with BagReader(ours) as r:                     # rosbags reads it, and its MCAP copy
+        assert r.custom_data == {"k": "v", "json": '{"a": 1}'}
 
 
 def test_write_block_is_read_back_as_written(tmp_path):
@@ -587,3 +631,18 @@ def test_block_encoders_match_rosbags():
                 enc._rosbags_js(names, int(sec[i]), int(nsec[i]), *(a[i] for a in arrays),
                                 frame_id=frame) for i in range(5)]
     assert enc.fallbacks == []
+
+
+def test_a_failed_background_write_is_raised_and_the_bag_removed(tmp_path, monkeypatch):
+    from fto_ros.bag import mcap_write
+
+    def broken(data, level):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(mcap_write._zstd, "compress", broken)
+    path = tmp_path / "bag"
+    block = np.zeros((30000, 60), np.uint8)                    # > 1 MiB: a chunk closes
+    with pytest.raises((OSError, BagError), match="No space left"):
+        with BagWriter(path) as bag:
+            bag.write_block("/a", F64, np.arange(30000), block)
+    assert not path.exists()

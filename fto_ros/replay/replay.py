@@ -45,7 +45,7 @@ from typing import Any
 
 import numpy as np
 
-from ..bag.reader import jazzy_typestore
+from ..bag.writer import warm_up
 from ..core.output_dir import check_output
 from ..observers.base import Observer
 from ..runner.params_file import load_params_files
@@ -115,7 +115,7 @@ def replay(bag_path, params_path, out_dir, *, node_name: str | None = None,
     params_path = params_paths[-1]          # the tuning file, in titles and names
     fqn = node_fqn(node_name)
     runner = Runner(load_params_files(params_paths, node_name, overrides))
-    jazzy_typestore()  # one-time library set-up (~50 ms on first use), not part of the replay
+    warm_up()  # one-time library set-up (rosbags' serialisers, ~0.1 s), not part of the replay
     obs = runner.observer
     out_dir = check_output(out_dir, "bag", overwrite=overwrite, inputs=inputs)
     custom = {"fto_ros.replay.bag": str(bag_path),

@@ -18,7 +18,7 @@ from ..bag import BagError, BagReader
 from ..bag.cdr import (F64_ARRAY, JOINT_STATE, decode_float_arrays, decode_float_block,
                        decode_joint_states, deserialize)
 from ..bag.mcap_scan import NotFast, fast_info, read_raw
-from ..bag.reader import jazzy_typestore
+from ..bag.reader import shared_typestore
 from .topics import ReplayError, resolve_topic
 
 CLOCK_TOPIC, CLOCK = "/clock", "rosgraph_msgs/msg/Clock"
@@ -117,7 +117,7 @@ def _roles(info, runner, fqn: str, bag_path: Path) -> Inputs:
 
 def _fast_streams(bag_path: Path, raw: dict, roles: dict[str, str]) -> _Streams:
     s = _Streams(reader="MCAP fast path")
-    typestore = None
+    typestore = None                    # only for what the numpy decoders leave
     for role, topic in roles.items():
         t, payloads = raw[topic]
         where = f"{bag_path}: topic {topic}"
@@ -127,14 +127,14 @@ def _fast_streams(bag_path: Path, raw: dict, roles: dict[str, str]) -> _Streams:
         elif role == "joints":
             msgs = decode_joint_states(payloads)
             if msgs is None:
-                typestore = typestore or jazzy_typestore()
+                typestore = typestore or shared_typestore()
                 msgs = [deserialize(typestore, p, JOINT_STATE, where, k)
                         for k, p in enumerate(payloads)]
             s.joints = (t, msgs)
         else:
             block = decode_float_block(payloads)
             if block is None:
-                typestore = typestore or jazzy_typestore()
+                typestore = typestore or shared_typestore()
                 block = decode_float_arrays(payloads, typestore, where)
             setattr(s, role, (t, block))
     return s
