@@ -316,27 +316,17 @@ def main(argv=None) -> int:
     return 0 if same == len(identical) else 1
 
 
-def _ruamel_dump(doc) -> str:
-    import io
-    from ruamel.yaml import YAML          # rosbags' emitter (installed with rosbags)
-    y = YAML(typ="safe")
-    y.default_flow_style = False
-    out = io.StringIO()
-    y.dump(doc, out)
-    return out.getvalue()
-
-
 def _identical(msgs: dict, rows: list, out: Path) -> bool:
     """The same messages through fto_ros's writer (in rosbags' order, one at a time, with
     rosbags' YAML emitter) and through rosbags': the same bytes?"""
-    from fto_ros.bag.mcap_write import McapBag
+    from fto_ros.bag.mcap_write import McapBag, dump_yaml_as_rosbags
     ts = jazzy_typestore()
     a, b = out.parent / "rosbags" / out.name, out.parent / "fto" / out.name
     a.parent.mkdir(parents=True, exist_ok=True)
     b.mkdir(parents=True)
     write_rosbags(msgs, rows, a)
     bag = McapBag(b, library=f"rosbags-{version('rosbags')}", ros_distro="rosbags",
-                  dump=_ruamel_dump)
+                  dump=dump_yaml_as_rosbags)
     cids = {topic: bag.add_connection(topic, m[0], ts.generate_msgdef(m[0], ros_version=2)[0],
                                       ts.hash_rihs01(m[0])) for topic, m in msgs.items()}
     for t, _k, topic, data in rows:

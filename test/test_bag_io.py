@@ -420,17 +420,6 @@ def _write_sequence(rng, n_steps: int = 40):
     return seq
 
 
-def ruamel_dump(doc) -> str:
-    """YAML as rosbags dumps it (ruamel.yaml, installed with rosbags)."""
-    import io
-    from ruamel.yaml import YAML
-    y = YAML(typ="safe")
-    y.default_flow_style = False
-    out = io.StringIO()
-    y.dump(doc, out)
-    return out.getvalue()
-
-
 @pytest.mark.parametrize("compress,background", [(True, False), (False, False), (True, True)])
 def test_writer_lays_out_the_bag_byte_for_byte_as_rosbags(tmp_path, compress, background):
     """The same messages, in the same order, through rosbags' writer (one at a time) and
@@ -438,7 +427,7 @@ def test_writer_lays_out_the_bag_byte_for_byte_as_rosbags(tmp_path, compress, ba
     metadata.yaml, byte for byte."""
     from importlib.metadata import version
     from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
-    from fto_ros.bag.mcap_write import McapBag
+    from fto_ros.bag.mcap_write import McapBag, dump_yaml_as_rosbags
     from fto_ros.bag.reader import jazzy_typestore
     ts = jazzy_typestore()
     topics = [("/a", F64), ("/b", CLOCK), ("/c", JS)]
@@ -454,7 +443,7 @@ def test_writer_lays_out_the_bag_byte_for_byte_as_rosbags(tmp_path, compress, ba
     w.open()
     conns = [w.add_connection(t, m, typestore=ts) for t, m in topics]
     bag = McapBag(ours, compress=compress, library=f"rosbags-{version('rosbags')}",
-                  ros_distro="rosbags", custom_data=custom, dump=ruamel_dump,
+                  ros_distro="rosbags", custom_data=custom, dump=dump_yaml_as_rosbags,
                   background=background)
     cids = [bag.add_connection(t, m, ts.generate_msgdef(m, ros_version=2)[0], ts.hash_rihs01(m))
             for t, m in topics]
@@ -646,3 +635,18 @@ def test_a_failed_background_write_is_raised_and_the_bag_removed(tmp_path, monke
         with BagWriter(path) as bag:
             bag.write_block("/a", F64, np.arange(30000), block)
     assert not path.exists()
+
+
+def test_a_lone_mcap_file_is_replayed_through_the_fast_path(tmp_path):
+    """A bag given as its .mcap file (no metadata.yaml beside it to read first) still goes
+    through the fast reader, and gives the directory's replay."""
+    from fto_ros.replay import replay
+    params = [ROOT / "config" / "dc_motor_plant.yaml", ROOT / "config" / "dc_motor_luenberger.yaml"]
+    lone = tmp_path / "nominal.mcap"
+    shutil.copy(ROOT / "bags" / "dc_motor_nominal" / "dc_motor_nominal.mcap", lone)
+    a = replay(lone, params, tmp_path / "a", plot=False, progress=False)
+    b = replay(ROOT / "bags" / "dc_motor_nominal", params, tmp_path / "b", plot=False,
+               progress=False)
+    assert a["reader"] == b["reader"] == "MCAP fast path"
+    for key in ("samples_accepted", "errors", "bag_duration_s", "output_topics"):
+        assert a[key] == b[key], key

@@ -19,6 +19,7 @@ caller fills the next one (the same bytes, in the same order).
 """
 from __future__ import annotations
 
+import io
 import struct
 import sys
 from collections import deque
@@ -76,6 +77,17 @@ def dump_yaml(doc) -> str:
     """YAML text of metadata.yaml (block style, keys sorted, as rosbags writes it; libyaml
     folds and quotes some strings otherwise than rosbags' ruamel.yaml: the same values)."""
     return yaml.dump(doc, Dumper=_DUMPER, default_flow_style=False)
+
+
+def dump_yaml_as_rosbags(doc) -> str:
+    """YAML text exactly as rosbags writes it (ruamel.yaml's safe dumper, which rosbags
+    installs): ``McapBag(..., dump=dump_yaml_as_rosbags)`` writes rosbags' bytes."""
+    from ruamel.yaml import YAML
+    y = YAML(typ="safe")
+    y.default_flow_style = False
+    out = io.StringIO()
+    y.dump(doc, out)
+    return out.getvalue()
 
 
 class McapBag:
@@ -328,4 +340,4 @@ class McapBag:
             self._pending.clear()
 
 
-__all__ = ["CHUNK_LIMIT", "McapBag", "dump_yaml"]
+__all__ = ["CHUNK_LIMIT", "McapBag", "dump_yaml", "dump_yaml_as_rosbags"]

@@ -54,6 +54,13 @@ def _rows(values) -> list:
     return values.tolist() if isinstance(values, np.ndarray) else values
 
 
+def _no_output(why: str, status: list, reasons: list) -> None:
+    """Record a sample without an output: held at a time jump, or rejected for ``why``."""
+    status.append(IS_HELD if why == HELD else REJECTED)
+    if why != HELD:
+        reasons.append(why)
+
+
 def run_window(runner, ev: E.Events, start: int, stop: int, samples: SampleLists,
                n: int, r: int, ncf: int, future_tol_ns: int) -> tuple[OutputBlock, float]:
     """(the OutputBlock of the events ``[start, stop)``, seconds spent in the runner)."""
@@ -73,9 +80,7 @@ def run_window(runner, ev: E.Events, start: int, stop: int, samples: SampleLists
             c1 = perf()
             runner_s += c1 - c0
             if out.__class__ is str:
-                status.append(IS_HELD if out == HELD else REJECTED)
-                if out != HELD:
-                    reasons.append(out)
+                _no_output(out, status, reasons)
                 continue
             s_ns, dt = t_ns, c1 - c0
         elif kind == E.INPUT:
@@ -95,25 +100,21 @@ def run_window(runner, ev: E.Events, start: int, stop: int, samples: SampleLists
                 why = sample if sample.__class__ is str else "future_stamp"
                 reject(why)
                 runner_s += perf() - c0
-                status.append(REJECTED)
-                reasons.append(why)
+                _no_output(why, status, reasons)
                 continue
             t, y, u = sample
             if u is not None:
                 why = set_input(t, u)
                 if why is not None:          # counted by the runner; never pair y with a bad u
                     runner_s += perf() - c0
-                    status.append(REJECTED)
-                    reasons.append(why)
+                    _no_output(why, status, reasons)
                     continue
             c1 = perf()
             out = process(t, y)
             c2 = perf()
             runner_s += c2 - c0
             if out.__class__ is str:
-                status.append(IS_HELD if out == HELD else REJECTED)
-                if out != HELD:
-                    reasons.append(out)
+                _no_output(out, status, reasons)
                 continue
             dt = c2 - c1                     # process alone, as for a measurement
         status.append(ACCEPTED)

@@ -36,7 +36,7 @@ class OutputBag:
         self.status_levels: dict[str, int] = {}
         # the input topics, copied (log times as in the input bag): the output bag holds
         # what the estimates were estimated from, and plays on its own
-        self.copy_topic = {role: topic for role, topic in inp.roles.items()}
+        self.copy_topic = dict(inp.roles)
         for role, topic in self.copy_topic.items():
             bag.connect(topic, ROLE_TYPES[role])
             self.counts[topic] = len(streams.copies[role])

@@ -61,23 +61,26 @@ class Inputs:
 
 def read_inputs(bag_path: Path, runner, fqn: str) -> Inputs:
     """The roles of ``runner``'s settings in the bag at ``bag_path``, and their messages."""
+    reader = None
     try:
-        info, files = fast_info(bag_path)
-    except NotFast as why:
-        with BagReader(bag_path) as reader:
-            inp = _roles(reader.info(), runner, fqn, bag_path)
+        try:
+            info, files = fast_info(bag_path)
+        except NotFast:                 # e.g. a lone .mcap file: rosbags says what it holds
+            reader = BagReader(bag_path)
+            info, files = reader.info(), None
+        inp = _roles(info, runner, fqn, bag_path)
+        topics = sorted(set(inp.roles.values()))
+        try:
+            raw = read_raw(bag_path, topics, files)
+            _check_counts(bag_path, info.topics, {t: len(raw[t][1]) for t in topics})
+            inp.streams = _fast_streams(bag_path, raw, inp.roles)
+        except (NotFast, BagError) as why:   # the fast path read fewer: rosbags must do better
+            reader = reader or BagReader(bag_path)
             inp.streams = _rosbags_streams(bag_path, reader, inp, str(why))
         return inp
-    inp = _roles(info, runner, fqn, bag_path)
-    topics = sorted(set(inp.roles.values()))
-    try:
-        raw = read_raw(bag_path, topics, files)
-        _check_counts(bag_path, info.topics, {t: len(raw[t][1]) for t in topics})
-        inp.streams = _fast_streams(bag_path, raw, inp.roles)
-    except (NotFast, BagError) as why:   # the fast path read fewer: rosbags must do better
-        with BagReader(bag_path) as reader:
-            inp.streams = _rosbags_streams(bag_path, reader, inp, str(why))
-    return inp
+    finally:
+        if reader is not None:
+            reader.close()
 
 
 def _roles(info, runner, fqn: str, bag_path: Path) -> Inputs:
