@@ -56,6 +56,7 @@ import numpy as np
 
 from .. import __version__
 from ..bag import BagError, BagWriter
+from ..core.output_dir import OutputError, OutputExists, check_output
 from ..models import MODELS
 from .args import non_negative_float, positive_float
 from ..models.simulate import quantize_ns, simulate, sparse_instants, to_ns, uniform_grid
@@ -110,7 +111,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="at time T (s) the state STATE (index or name) jumps by DELTA, "
                              "e.g. 5.0,q_dot,4 (a collision); repeatable")
     parser.add_argument("--overwrite", action="store_true",
-                        help="replace BAG if it exists (only if it is a bag directory)")
+                        help="replace BAG if it exists, only if it is an empty folder or a bag "
+                             "fto_ros wrote (never a file, a symlink, a device or another folder)")
     return parser
 
 
@@ -243,9 +245,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"model {spec.name} defines no output disturbance")
     if args.uncertainty and spec.uncertainty is None:
         parser.error(f"model {spec.name} defines no uncertainty")
-    out = Path(args.out)
-    if (out.exists() or out.is_symlink()) and not args.overwrite:
-        print(f"{PROG}: error: {out}: output exists already (use --overwrite)", file=sys.stderr)
+    inputs = [*args.params, *([args.sample_times] if args.sample_times else [])]
+    try:
+        out = check_output(args.out, "bag", overwrite=args.overwrite, inputs=inputs)
+    except OutputError as err:
+        print(f"{PROG}: error: {err}", file=sys.stderr)
+        return 2
+    except OutputExists as err:
+        print(f"{PROG}: error: {err}", file=sys.stderr)
         return 1
 
     jumps = _jumps(args, parser, spec)
@@ -346,7 +353,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     joints = list(spec.joint_names)
 
     try:
-        with BagWriter(out, overwrite=args.overwrite,
+        with BagWriter(out, overwrite=args.overwrite, inputs=inputs,
                        custom_data={METADATA_KEY: json.dumps(settings, sort_keys=True)}) as bag:
             for i, t in enumerate(t_all):
                 t_ns = to_ns(t)
@@ -362,7 +369,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                     if joints:
                         bag.joint_state(topics["joint_states"], t_ns, t_ns, joints, position=yj)
             counts = dict(bag.counts)
-    except BagError as err:
+    except OutputError as err:              # the output changed since it was checked
+        print(f"{PROG}: error: {err}", file=sys.stderr)
+        return 2
+    except (BagError, OutputExists) as err:
         print(f"{PROG}: error: {err}", file=sys.stderr)
         return 1
     total = time.perf_counter() - started
