@@ -51,7 +51,7 @@ def test_every_sample_has_a_status_and_the_rows_are_the_accepted_ones(tmp_path):
     due = []
     for start, stop, boundary in E.windows(ev, int(ev.t[0]), period, 128):
         block, _ = run_window(runner, ev, start, stop, samples, obs.n_states, 0,
-                              len(runner.convergence_fields), 0)
+                              len(runner.convergence_fields))
         blocks.append(block)
         if boundary is not None:
             due.append(boundary)
