@@ -37,6 +37,7 @@ setup(
         ('share/' + package_name, ['package.xml']),
         *_share('config', '*.yaml'),
         *_share('launch', '*.py'),
+        *_share('urdf', '*.urdf'),
     ],
     install_requires=_requirements(),
     extras_require={'test': ['pytest>=7', 'hypothesis>=6', 'pytest-xdist>=3.5']},

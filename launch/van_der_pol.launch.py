@@ -16,8 +16,8 @@ from launch_ros.substitutions import FindPackageShare
 
 def generate_launch_description():
     share = FindPackageShare('fto_ros')
-    params_file = PathJoinSubstitution(
-        [share, 'config', ['van_der_pol_', LaunchConfiguration('observer'), '.yaml']])
+    # one path from a list of substitutions (PathJoinSubstitution takes no nested list)
+    params_file = [share, '/config/van_der_pol_', LaunchConfiguration('observer'), '.yaml']
     return LaunchDescription([
         DeclareLaunchArgument(
             'observer', default_value='global_norm',

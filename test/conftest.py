@@ -1,5 +1,5 @@
-"""The fault-injection suite's totals (test/faultkit.py COUNTS), printed in pytest's
-terminal summary, summed over pytest-xdist's worker processes when there are several."""
+"""The fault-injection suite's totals (test/faultkit.py COUNTS: runner operations, command-line
+runs, live-node operations), printed in pytest's terminal summary, summed over pytest-xdist's worker processes when there are several."""
 from __future__ import annotations
 
 import pytest
@@ -19,9 +19,11 @@ def pytest_testnodedown(node, error):                     # xdist controller: ad
 
 def pytest_terminal_summary(terminalreporter):
     cli = {k[4:]: v for k, v in COUNTS.items() if k.startswith("cli_")}
-    runner = {k: v for k, v in COUNTS.items() if not k.startswith("cli_")}
+    live = {k[5:]: v for k, v in COUNTS.items() if k.startswith("live_")}
+    runner = {k: v for k, v in COUNTS.items() if not k.startswith(("cli_", "live_"))}
     for what, unit, counts in (("runner", "operations", runner),
-                               ("command line", "runs", cli)):
+                               ("command line", "runs", cli),
+                               ("live node", "operations", live)):
         if counts:
             terminalreporter.write_line(
                 f"fault injection ({what}): {sum(counts.values())} {unit}, by family: "

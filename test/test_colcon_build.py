@@ -87,6 +87,8 @@ def test_build_installs_ros_layout(workspace):
     assert (prefix / 'share' / PKG / 'package.xml').is_file()
     for yaml in sorted((REPO / 'config').glob('*.yaml')):
         assert (prefix / 'share' / PKG / 'config' / yaml.name).is_file(), yaml.name
+    for urdf in sorted((REPO / 'urdf').glob('*.urdf')):          # the example arm
+        assert (prefix / 'share' / PKG / 'urdf' / urdf.name).is_file(), urdf.name
     # `ros2 launch fto_ros <file>` looks in share/fto_ros/launch
     launch_files = sorted((REPO / 'launch').glob('*.launch.py'))
     assert launch_files, 'no launch files in launch/'

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from faultkit import committed_configs, runner_for, stream_for
+from faultkit import COUNTS, committed_configs, runner_for, stream_for
 from fto_ros.bag import BagReader, BagWriter
 from fto_ros.core import jit
 from fto_ros.core.errors import ConfigError
@@ -370,3 +370,117 @@ def test_a_huge_params_file_is_one_line_exit_2(tmp_path, capsys):
     rc, err = _cli(capsys, ROOT / "bags" / "dc_motor_nominal", *SD_ARGS, "--params", plant,
                    "--out", tmp_path / "o")
     assert rc == 2 and len(err) == 1 and "plant.constants" in err[0] and "at most" in err[0], err
+
+
+# -- issue 19: the JointState intake the node and the replay share (runner/messages.py) --------
+class _Stamp:
+    def __init__(self, ns: int):
+        self.sec, self.nanosec = ns // 10**9, ns % 10**9
+
+
+class _Header:
+    def __init__(self, ns: int):
+        self.stamp = _Stamp(ns)
+
+
+class _JS:
+    """A JointState as either message class looks to the intake (duck-typed)."""
+
+    def __init__(self, ns, name, position=(), velocity=(), effort=()):
+        self.header = _Header(ns)
+        self.name, self.position, self.velocity, self.effort = name, position, velocity, effort
+
+
+JS_SETTINGS = {"joint_states.output_joints": ["joint1"], "joint_states.output_field": "position",
+               "joint_states.input_joints": ["joint1"], "joint_states.input_field": "effort",
+               "time.max_gap": 0.5, "time.future_tolerance": 0.5}
+WALL = 1.7e9          # a wall clock (s since 1970)
+
+
+@pytest.mark.parametrize("names, position, effort, reason", [
+    (["joint1", "joint1"], [0.5, 9.0], [2.0, 2.0], "joint_states_duplicate_name"),
+    (["joint2", "joint1", "joint2"], [0.1, 0.5, 0.1], [0.0, 2.0, 0.0], "joint_states_duplicate_name"),
+    (["joint1"], [0.5, 9.0], [2.0], "joint_states_position_missing"),     # longer than name
+    (["joint1"], [0.5], [], "joint_states_effort_missing"),               # the input field
+    (["joint2"], [0.5], [2.0], "joint_states_joint_missing"),
+])
+def test_joint_state_intake_rejects_ambiguous_and_inconsistent_messages(names, position, effort,
+                                                                         reason):
+    """Was: a joint named twice was taken with its first value.  Which value is meant cannot be
+    known: the message is rejected, counted, as one of inconsistent lengths (a used field)."""
+    from fto_ros.runner.messages import joint_state_sample
+    msg = _JS(int(WALL * 1e9), names, position, effort=effort)
+    assert joint_state_sample(msg, JS_SETTINGS, WALL) == reason
+    COUNTS["js_intake"] += 1
+
+
+def test_joint_state_intake_ignores_an_unused_field_of_another_length():
+    from fto_ros.runner.messages import joint_state_sample
+    msg = _JS(int(WALL * 1e9), ["joint1"], [0.5], velocity=[1.0, 2.0, 3.0], effort=[2.0])
+    assert joint_state_sample(msg, JS_SETTINGS, WALL) == (WALL, [0.5], [2.0])
+
+
+@pytest.mark.parametrize("clock, verdict", [
+    (None, "taken"),          # the node on sim time (before /clock, or /clock may lag)
+    (0.0, "taken"),           # a bag or simulation that starts at 0 (replay: log time 0)
+    (0.4, "taken"),           # ... within time.max_gap of its start
+    (WALL, "zero_stamp"),     # the node on wall time; the replay of a wall-clock recording
+])
+def test_zero_stamp_one_rule_for_node_and_replay(clock, verdict):
+    """Was: the node rejected a first sample stamped 0 (without sim time), the replay took it:
+    now one rule in the intake both call, against the clock each has (the node's wall clock,
+    the replay's log time)."""
+    from fto_ros.runner.messages import joint_state_sample
+    got = joint_state_sample(_JS(0, ["joint1"], [0.5], effort=[2.0]), JS_SETTINGS, clock)
+    assert (got if isinstance(got, str) else "taken") == verdict
+
+
+def _js_params(tmp_path) -> Path:
+    import yaml
+    doc = yaml.safe_load((ROOT / "test" / "data" / "dc_motor_explicit" /
+                          "dc_motor_luenberger.yaml").read_text())
+    p = doc["observer_node"]["ros__parameters"]
+    p["source"] = "joint_states"
+    p["joint_states"].update(input_joints=["joint1"], input_field="effort")
+    path = tmp_path / "js.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
+@pytest.mark.parametrize("base_ns, rejected", [(0, 0), (int(WALL * 1e9), 1)])
+def test_replay_applies_the_zero_stamp_rule_of_the_node(motor, tmp_path, base_ns, rejected):
+    """A JointState bag whose first stamp is 0: replayed from log time 0 (a simulation) it is
+    taken; in a wall-clock recording (log times ~1.7e9 s) it is an unstamped message, rejected
+    as 'zero_stamp', as the node without sim time rejects it."""
+    from fto_ros.replay import replay
+    t, sim = motor
+    bag = tmp_path / "js"
+    with BagWriter(bag) as w:
+        for k in range(300):
+            log_ns = base_ns + int(round(t[k] * 1e9))
+            stamp_ns = 0 if k == 0 else log_ns
+            w.joint_state("/dc_motor/joint_states", log_ns, stamp_ns, ["joint1"],
+                          position=sim.y[k], effort=sim.u_k[k])
+            w.float_array("/dc_motor/true_state", log_ns, sim.x[k])
+    m = replay(bag, _js_params(tmp_path), tmp_path / "out", progress=False, plot=False)
+    assert m["rejected_by_reason"].get("zero_stamp", 0) == rejected, m["rejected_by_reason"]
+    assert m["samples_accepted"] == 300 - rejected
+
+
+def test_replay_rejects_a_joint_named_twice(motor, tmp_path):
+    from fto_ros.replay import replay
+    t, sim = motor
+    bag = tmp_path / "dup"
+    with BagWriter(bag) as w:
+        for k in range(300):
+            ns = int(round(t[k] * 1e9))
+            if k % 50 == 25:      # a second robot's joint1 in the same message
+                w.joint_state("/dc_motor/joint_states", ns, ns, ["joint1", "joint1"],
+                              position=[float(sim.y[k][0]), 100.0], effort=[sim.u_k[k][0]] * 2)
+            else:
+                w.joint_state("/dc_motor/joint_states", ns, ns, ["joint1"], position=sim.y[k],
+                              effort=sim.u_k[k])
+            w.float_array("/dc_motor/true_state", ns, sim.x[k])
+    m = replay(bag, _js_params(tmp_path), tmp_path / "out", progress=False, plot=False)
+    assert m["rejected_by_reason"] == {"joint_states_duplicate_name": 6}, m["rejected_by_reason"]
+    assert m["samples_accepted"] == 294

@@ -316,3 +316,137 @@ def test_node_and_replay_refuse_the_same_files_alike(short_bag, tmp_path, capsys
         if seen == 6:
             break
     assert seen >= 4
+
+
+# -- output paths: nothing outside the output is ever touched (issue 19, item 1) ---------------
+#: the attacks: --out aimed at something that is not an output fto_ros wrote, or at an input
+ATTACKS = ("file", "symlink_to_file", "symlink_to_folder", "dangling_symlink", "fifo",
+           "folder_with_content", "output_with_a_user_file", "output_holding_a_symlink",
+           "output_of_another_kind", "input_bag", "inside_input_bag", "folder_holding_input",
+           "empty")
+
+
+def _arena(root: Path, bag: Path) -> dict[str, str]:
+    """Build every attack's target under ``root`` (a temp dir); attack -> --out argument.
+    A FIFO stands for a device node: no test ever aims at a real device."""
+    root.mkdir()
+    (root / "file.txt").write_text("precious\n")
+    (root / "folder" / "sub").mkdir(parents=True)
+    (root / "folder" / "notes.txt").write_text("mine\n")
+    (root / "folder" / "sub" / "data.csv").write_text("1,2\n")
+    os.symlink("file.txt", root / "link_to_file")
+    os.symlink("folder", root / "link_to_folder")
+    os.symlink("nowhere", root / "dangling")
+    os.mkfifo(root / "fifo")
+    shutil.copytree(bag, root / "holder" / "bag")
+    with BagWriter(root / "user_file") as out:       # outputs fto_ros wrote, then altered
+        out.clock(1)
+    (root / "user_file" / "thesis.tex").write_text("mine\n")
+    with BagWriter(root / "with_symlink") as out:
+        out.clock(1)
+    os.symlink("../file.txt", root / "with_symlink" / "metrics.json")
+    report = root / "report_out"                    # an fto_ros output, but not a bag
+    report.mkdir()
+    (report / ".fto_ros_output").write_text('{"written_by": "fto_ros", "kind": "report"}\n')
+    (report / "report.md").write_text("# report\n")
+    with BagWriter(root / "clean_bag") as out:       # a bag output: another kind for fto-report
+        out.clock(1)
+    return {"file": "file.txt", "symlink_to_file": "link_to_file",
+            "symlink_to_folder": "link_to_folder", "dangling_symlink": "dangling",
+            "fifo": "fifo", "folder_with_content": "folder",
+            "output_with_a_user_file": "user_file", "output_holding_a_symlink": "with_symlink",
+            "output_of_another_kind": "report_out", "input_bag": "holder/bag",
+            "inside_input_bag": "holder/bag/sub", "folder_holding_input": "holder", "empty": ""}
+
+
+def _snapshot(root: Path) -> dict[str, tuple]:
+    """Every path under ``root``: its type and content (files), target (symlinks)."""
+    out = {}
+    for folder, dirs, files in os.walk(root):
+        for name in dirs + files:
+            p = os.path.join(folder, name)
+            st = os.lstat(p)
+            if os.path.islink(p):
+                out[p] = ("link", os.readlink(p))
+            elif os.path.isfile(p):
+                out[p] = ("file", Path(p).read_bytes())
+            else:
+                out[p] = ("other", st.st_mode)
+    return out
+
+
+def _command(prog: str, bag: Path, target: str, overwrite: bool) -> list[str]:
+    over = ["--overwrite"] if overwrite else []
+    if prog == "fto-replay":
+        return [str(bag), "--params", str(EXPLICIT / "dc_motor_luenberger.yaml"), "--out", target,
+                "--no-progress", *over]
+    if prog == "fto-simulate":
+        return ["dc_motor", "--duration", "0.01", "--out", target, *over]
+    if prog == "fto-sweep":
+        return ["--params", str(EXPLICIT / "dc_motor_luenberger.yaml"), "--bag", str(bag),
+                "--out", target, "--workers", "1", "--quiet", *over]
+    # fto-report replaces an earlier report of its own without being asked: no --overwrite
+    return ["--bags-dir", str(bag.parent), "--config-dir", str(EXPLICIT), "--out", target,
+            "--workers", "1", "--no-progress"]
+
+
+def _main_of(prog: str):
+    from fto_ros.cli import report, simulate
+    from fto_ros.sweep import cli as sweep_cli
+    return {"fto-replay": replay_cli.main, "fto-simulate": simulate.main,
+            "fto-sweep": sweep_cli.main, "fto-report": report.main}[prog]
+
+
+@pytest.mark.parametrize("prog", ["fto-replay", "fto-simulate", "fto-sweep", "fto-report"])
+def test_output_path_attacks_touch_nothing(prog, short_bag, tmp_path, capsys, monkeypatch):
+    """Every writing command, every attack, with --overwrite (fto-report: always): exit 2,
+    one line on stderr, and not one byte, link or entry of the arena changed."""
+    root = tmp_path / "arena"
+    targets = _arena(root, short_bag)
+    monkeypatch.chdir(root)                       # relative targets, as a user types them
+    bag = root / "holder" / "bag"
+    for attack in ATTACKS:
+        if prog == "fto-simulate" and "input" in attack:
+            continue                              # it reads no bag
+        before = _snapshot(root)
+        target = "clean_bag" if (prog, attack) == ("fto-report", "output_of_another_kind") \
+            else targets[attack]
+        rc = _main_of(prog)(_command(prog, bag, target, overwrite=True))
+        err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+        COUNTS[f"cli_out_{attack}"] += 1
+        assert rc == 2, (prog, attack, rc, err)
+        assert len(err) == 1 and err[0].startswith(f"{prog}: error: "), (prog, attack, err)
+        assert "Traceback" not in err[0] and "unexpected" not in err[0], err
+        assert _snapshot(root) == before, (prog, attack, "the arena changed")
+
+
+@pytest.mark.parametrize("prog", ["fto-replay", "fto-sweep"])
+def test_output_is_never_the_input_even_without_overwrite(prog, short_bag, tmp_path, capsys):
+    root = tmp_path / "arena"
+    targets = _arena(root, short_bag)
+    bag = root / "holder" / "bag"
+    for attack in ("input_bag", "inside_input_bag", "folder_holding_input"):
+        before = _snapshot(root)
+        rc = _main_of(prog)(_command(prog, bag, str(root / targets[attack]), overwrite=False))
+        err = capsys.readouterr().err.strip().splitlines()
+        assert rc == 2 and len(err) == 1 and "input" in err[0], (attack, rc, err)
+        assert _snapshot(root) == before
+
+
+def test_overwrite_replaces_an_output_fto_ros_wrote(short_bag, tmp_path, capsys):
+    """The other side of the rule: --overwrite does replace what it may replace."""
+    from fto_ros.cli import simulate
+    sim = tmp_path / "sim"
+    assert simulate.main(["dc_motor", "--duration", "0.01", "--out", str(sim)]) == 0
+    assert (sim / ".fto_ros_output").is_file()
+    assert simulate.main(["dc_motor", "--duration", "0.02", "--out", str(sim)]) == 1  # exists
+    assert simulate.main(["dc_motor", "--duration", "0.02", "--out", str(sim), "--overwrite"]) == 0
+    assert BagReader(sim).info().topics["/clock"].count == 21
+    out = tmp_path / "o"
+    args = [short_bag, "--params", EXPLICIT / "dc_motor_luenberger.yaml", "--out", out]
+    assert replay_cli_run(capsys, *args)[0] == 0
+    assert replay_cli_run(capsys, *args)[0] == 1                     # exists, no --overwrite
+    rc, err, _ = replay_cli_run(capsys, *args, "--overwrite")
+    assert rc == 0, err
+    assert sorted(p.name for p in out.iterdir()) == [".fto_ros_output", "metadata.yaml",
+                                                     "metrics.json", "o.mcap", "replay.png"]

@@ -5,7 +5,7 @@ it declares are exactly the ones docs/ros_interface.md documents, with the same 
 and choices; the example files include observer.launch.py with a params file that exists,
 and reach every committed config; the executables they start are console scripts; a pip
 install puts them under share/fto_ros/launch (the colcon install is checked in
-test_colcon_build.py). What still needs a ROS install is `ros2 launch` itself.
+test_colcon_build.py). test_ros2_cli.py runs each of them with the real `ros2 launch`.
 """
 from __future__ import annotations
 
@@ -106,15 +106,19 @@ def documented_examples() -> dict[str, list[str]]:
 
 
 def config_prefix(path: Path) -> str:
-    """The '<system>_' that an example file puts before LaunchConfiguration('observer')."""
+    """The '<system>_' of the params file an example builds: [share, '/config/<system>_',
+    LaunchConfiguration('observer'), '.yaml'] (substitutions concatenated)."""
     for node in ast.walk(_tree(path)):
         if isinstance(node, ast.List) and any(
                 isinstance(e, ast.Call) and _name(e.func) == "LaunchConfiguration"
                 and _strings(e) == ["observer"] for e in node.elts):
-            first, last = node.elts[0], node.elts[-1]
-            assert isinstance(first, ast.Constant) and isinstance(last, ast.Constant)
-            assert last.value == ".yaml", f"{path.name}: the params file must end in .yaml"
-            return first.value
+            assert len(node.elts) == 4, f"{path.name}: [share, '/config/<system>_', observer, '.yaml']"
+            share, middle, _, last = node.elts
+            assert isinstance(share, ast.Name) and share.id == "share", path.name
+            assert isinstance(middle, ast.Constant) and middle.value.startswith("/config/")
+            assert isinstance(last, ast.Constant) and last.value == ".yaml", \
+                f"{path.name}: the params file must end in .yaml"
+            return middle.value[len("/config/"):]
     raise AssertionError(f"{path.name} builds no config/<system>_<observer>.yaml path")
 
 

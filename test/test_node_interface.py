@@ -81,6 +81,9 @@ def test_stamped_named_estimates_and_set_state(tmp_path, plant):
             sent[ns] = k
             time.sleep(0.001)
         driver.wait_for(lambda: len(stamped) > 100, 15, "stamped estimates", node)
+        # every sample taken before set_state: one still queued would start the restarted
+        # observer before the one below (a race on a loaded machine: 2 of 4 runs failed)
+        driver.wait_quiet(node, "messages received: joint_states")
         with driver.lock:
             got = list(stamped)
         for m in got:
@@ -154,14 +157,7 @@ def test_managed_node_through_the_lifecycle_services(tmp_path, plant):
         p["diagnostics"].update(period=0.2, expected_rate=0.0)
     domain = _domain(42)
     params = _params_file(tmp_path, "managed", edit)
-    node = NodeProcess.__new__(NodeProcess)
-    # the managed executable (its own module), else as NodeProcess starts the plain one
-    node.err_path = tmp_path / "managed.log"
-    node._err = open(node.err_path, "w+")
-    node.proc = subprocess.Popen([sys.executable, "-m", "fto_ros.nodes.managed_node", "--ros-args",
-                                  "--params-file", str(params)], cwd=ROOT,
-                                 env=_ros_env(domain, tmp_path), stdout=node._err,
-                                 stderr=subprocess.STDOUT)
+    node = NodeProcess(tmp_path, domain, params, module="fto_ros.nodes.managed_node")
     driver = Driver(domain)
     try:
         driver.wait_for(lambda: driver.node.count_publishers(NODE + "/transition_event") > 0
@@ -192,7 +188,8 @@ def test_managed_node_through_the_lifecycle_services(tmp_path, plant):
         _feed(driver, plant, 100, start=250)
         st = driver.status_where(lambda s: _count(s, "samples accepted") > accepted + 50, 15,
                                  "samples after re-activation", node)
-        assert not any(k.startswith("restarts:") for k in st["values"]), st["values"]
+        assert not any(k.startswith("restarts:") for k in st["values"]), \
+            {k: v for k, v in st["values"].items() if k.startswith(("restarts:", "rejected:"))}
         assert float(st["values"]["time since start (s)"]) > 0.2
         # cleanup and shutdown
         assert _lifecycle(driver, Transition.TRANSITION_DEACTIVATE)

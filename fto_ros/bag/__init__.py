@@ -1,8 +1,11 @@
-"""rosbag2 (MCAP) file I/O with rosbags: no rclpy, no ROS install needed.
+"""rosbag2 (MCAP) file I/O: no rclpy, no ROS install needed.
 
 - :class:`BagWriter` writes ``Float64MultiArray``, ``JointState``, ``Clock`` and
-  ``DiagnosticArray`` messages from plain Python values.
-- :class:`BagReader` / :func:`read_messages` yield ``(topic, t_ns, msg)`` in
+  ``DiagnosticArray`` messages from plain Python values, ready CDR bytes, or blocks of
+  many messages at once (mcap_write.py, our own MCAP writer).
+- mcap_scan.py reads a bag's raw payloads fast through its MCAP indexes, cdr.py decodes
+  and encodes fixed-layout messages in blocks (numpy).
+- :class:`BagReader` (rosbags) / :func:`read_messages` yield ``(topic, t_ns, msg)`` in
   log-time order; :func:`list_topics` / :func:`bag_info` summarise a bag.
 - Every failure raises :class:`BagError` naming the path and the problem.
 """

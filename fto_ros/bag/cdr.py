@@ -81,28 +81,40 @@ def _f64_data_at(p) -> tuple[int, int]:
     return pos, count
 
 
-def decode_float_arrays(payloads: list, typestore, where: str = "Float64MultiArray") -> list:
+def decode_float_block(payloads) -> np.ndarray | None:
+    """The ``data`` of raw CDR Float64MultiArray payloads as one ``(N, n)`` float64 array,
+    when they all have the same length and the same bytes before their data (one
+    publisher, a fixed layout: the usual case, decoded with no Python per message); None
+    otherwise.  ``payloads``: a :class:`~fto_ros.bag.mcap_scan.Payloads` or a list of bytes."""
+    matrix = getattr(payloads, "matrix", None)
+    if matrix is None:
+        if not payloads or len({len(p) for p in payloads}) != 1:
+            return None
+        matrix = np.frombuffer(b"".join(payloads), np.uint8).reshape(len(payloads), -1)
+    if not len(matrix):
+        return None
+    try:
+        off, count = _f64_data_at(matrix[0])
+    except (ValueError, struct.error):
+        return None
+    if not np.array_equal(matrix[:, :off], np.broadcast_to(matrix[0, :off], (len(matrix), off))):
+        return None
+    return matrix[:, off:off + 8 * count].copy().view("<f8")
+
+
+def decode_float_arrays(payloads, typestore, where: str = "Float64MultiArray") -> list:
     """The ``data`` of raw CDR Float64MultiArray payloads, as lists of floats.
 
-    In bulk with numpy when every payload has the same length and the same
-    bytes before its data (the usual case: one publisher, fixed layout); per
-    message otherwise, with the rosbags deserialiser for anything unusual
-    (big-endian CDR).  A payload nothing can decode raises BagError naming
-    ``where`` (the bag and the topic) and the message.
+    In bulk (:func:`decode_float_block`) when every payload has the same length and the
+    same bytes before its data; per message otherwise, with the rosbags deserialiser for
+    anything unusual (big-endian CDR).  A payload nothing can decode raises BagError
+    naming ``where`` (the bag and the topic) and the message.
     """
-    if not payloads:
+    if not len(payloads):
         return []
-    try:
-        off, count = _f64_data_at(payloads[0])
-        length = len(payloads[0])
-        if all(len(p) == length for p in payloads):
-            raw = np.frombuffer(b"".join(payloads), dtype=np.uint8).reshape(len(payloads), length)
-            if np.array_equal(raw[:, :off], np.broadcast_to(raw[0, :off], (len(payloads), off))):
-                if count == 0:
-                    return [[] for _ in payloads]
-                return raw[:, off:off + 8 * count].copy().view("<f8").tolist()
-    except (ValueError, struct.error):
-        pass
+    block = decode_float_block(payloads)
+    if block is not None:
+        return block.tolist()
     out = []
     for k, p in enumerate(payloads):
         try:
@@ -123,10 +135,13 @@ def deserialize(typestore, payload, msgtype: str, where: str, k: int):
 
 
 class Encoders:
-    """Byte-template serialisers for the published messages, each checked once against rosbags.
+    """Byte-template serialisers of the published messages, a block of K messages at once
+    (the CDR of a fixed-layout message is a fixed template with a few fields changing:
+    the K messages are one (K, L) uint8 array), each checked once against rosbags.
 
-    A template that does not reproduce ``typestore.serialize_cdr`` byte for
-    byte is not used: that message type then goes through rosbags.
+    A template that does not reproduce ``typestore.serialize_cdr`` byte for byte is not
+    used: that message type then goes through rosbags (listed in ``fallbacks``), and its
+    block encoder returns a list of bytes instead of a matrix.
     """
 
     def __init__(self, typestore):
@@ -138,7 +153,7 @@ class Encoders:
         self._JS = T[JOINT_STATE]
         self._Header = T["std_msgs/msg/Header"]
         self._Time = T["builtin_interfaces/msg/Time"]
-        self._f64: dict[tuple, Callable[[np.ndarray], bytes]] = {}
+        self._f64: dict[tuple, Callable] = {}
         self._js: dict[tuple, Callable] = {}
         self.fallbacks: list[str] = []
 
@@ -148,30 +163,39 @@ class Encoders:
                         data=np.ascontiguousarray(x, dtype=np.float64))
         return bytes(self.ts.serialize_cdr(msg, F64_ARRAY))
 
-    def float_array(self, n: int, labels=None,
-                    values: str = "array") -> Callable[[Any], bytes]:
-        """``x (length n) -> CDR bytes`` (layout: see :func:`f64_prefix`).
-
-        ``values``: "array" for a float64 numpy array, "list" for a list of floats.
-        """
+    def float_block(self, n: int, labels=None) -> Callable[[np.ndarray], Any]:
+        """``X (K, n) -> the K messages' CDR`` ((K, L) uint8; layout: :func:`f64_prefix`)."""
         labels = tuple(labels) if labels else None
-        key = (n, labels, values)
+        key = (n, labels)
         enc = self._f64.get(key)
         if enc is None:
-            prefix = f64_prefix(n, labels)
-            if values == "array":
-                def enc(x, _p=prefix):
-                    return _p + x.tobytes()
-            else:
-                def enc(x, _p=prefix, _pack=struct.Struct(f"<{n}d").pack):
-                    return _p + _pack(*x)
+            prefix = np.frombuffer(f64_prefix(n, labels), np.uint8)
+            p = prefix.size
+
+            def enc(x, _prefix=prefix, _p=p):
+                x = np.ascontiguousarray(x, dtype="<f8")
+                x = x.reshape(len(x), n)
+                out = np.empty((len(x), _p + 8 * n), np.uint8)
+                out[:, :_p] = _prefix
+                out[:, _p:] = x.view(np.uint8)
+                return out
             probe = np.arange(n, dtype=np.float64) * 1.25 - 0.5
-            if enc(probe if values == "array" else probe.tolist()) != self._rosbags_f64(probe, labels):
+            if enc(probe[None]).tobytes() != self._rosbags_f64(probe, labels):
                 self.fallbacks.append(f"Float64MultiArray[{n}]")
 
                 def enc(x, _labels=labels):
-                    return self._rosbags_f64(np.asarray(x, dtype=np.float64), _labels)
+                    x = np.asarray(x, dtype=np.float64)
+                    return [self._rosbags_f64(row, _labels) for row in x.reshape(len(x), n)]
             self._f64[key] = enc
+        return enc
+
+    def float_array(self, n: int, labels=None) -> Callable[[Any], bytes]:
+        """``x (length n) -> CDR bytes`` of one message (see :meth:`float_block`)."""
+        block = self.float_block(n, labels)
+
+        def enc(x):
+            out = block(np.asarray(x, dtype=np.float64)[None])
+            return out[0] if isinstance(out, list) else out.tobytes()
         return enc
 
     def _rosbags_js(self, names, sec, nsec, pos, vel, eff, frame_id: str = "") -> bytes:
@@ -181,75 +205,161 @@ class Encoders:
                        effort=np.asarray(eff, dtype=np.float64))
         return bytes(self.ts.serialize_cdr(msg, JOINT_STATE))
 
-    def joint_state(self, names: list[str], sizes: tuple[int, int, int],
-                    frame_id: str = "") -> Callable:
-        """``(sec, nanosec, position, velocity, effort) -> CDR bytes`` for fixed names and sizes."""
-        key = (tuple(names), sizes, frame_id)
+    def joint_state_block(self, names: list[str], sizes: tuple[int, int, int],
+                          frame_id: str = "") -> Callable:
+        """``(sec (K,), nanosec (K,), position (K, a), velocity (K, b), effort (K, c)) ->
+        the K messages' CDR`` for fixed names and sizes (a, b, c)."""
+        key = (tuple(names), tuple(sizes), frame_id)
         enc = self._js.get(key)
         if enc is not None:
             return enc
-        # XCDR1 little endian; alignment relative to the end of the 4-byte header
-        fmt, consts, off = ["<4siI"], [_CDR_LE], 8
-        pending = bytearray()
+        template, at = _joint_state_template(names, sizes, frame_id)
 
-        def const(b: bytes) -> None:
-            nonlocal off
-            pending.extend(b)
-            off += len(b)
-
-        def align(a: int) -> None:
-            const(b"\x00" * ((-off) % a))
-
-        def flush() -> None:
-            fmt.append(f"{len(pending)}s")
-            consts.append(bytes(pending))
-            pending.clear()
-
-        def string(s: str) -> None:
-            b = s.encode() + b"\x00"
-            align(4)
-            const(struct.pack("<I", len(b)) + b)
-
-        string(frame_id)
-        align(4)
-        const(struct.pack("<I", len(names)))
-        for nm in names:
-            string(nm)
-        arrays = []
-        for k in sizes:
-            align(4)
-            const(struct.pack("<I", k))
-            if k:
-                align(8)
-                flush()
-                fmt.append(f"{k}d")
-                off += 8 * k
-                arrays.append(True)
-            else:
-                arrays.append(False)
-        flush()
-        packer = struct.Struct("".join(fmt)).pack
-        c = consts  # c[0] header, c[1] up to the first array, then one per array
-
-        def enc(sec, nsec, pos, vel, eff):
-            args = [c[0], sec, nsec, c[1]]
-            j = 2
-            for present, vals in zip(arrays, (pos, vel, eff)):
-                if present:
-                    args.extend(vals)
-                    args.append(c[j])
-                    j += 1
-            return packer(*args)
+        def enc(sec, nsec, pos, vel, eff, _t=template, _at=at):
+            sec = np.asarray(sec, dtype="<i4").reshape(-1)
+            out = np.empty((sec.size, _t.size), np.uint8)
+            out[:] = _t
+            out[:, 4:8] = sec.view(np.uint8).reshape(-1, 4)
+            out[:, 8:12] = np.asarray(nsec, dtype="<u4").reshape(-1).view(np.uint8).reshape(-1, 4)
+            for off, k, vals in zip(_at, sizes, (pos, vel, eff)):
+                if k:
+                    v = np.ascontiguousarray(vals, dtype="<f8").reshape(-1, k)
+                    out[:, off:off + 8 * k] = v.view(np.uint8)
+            return out
 
         probe = [[0.5 + i + 10 * f for i in range(k)] for f, k in enumerate(sizes)]
-        try:
-            ok = enc(12, 345, *probe) == self._rosbags_js(names, 12, 345, *probe, frame_id=frame_id)
-        except struct.error:
-            ok = False
-        if not ok:
-            self.fallbacks.append(f"JointState{sizes}")
+        ref = self._rosbags_js(names, 12, 345, *probe, frame_id=frame_id)
+        if enc([12], [345], *([p] for p in probe)).tobytes() != ref:
+            self.fallbacks.append(f"JointState{tuple(sizes)}")
 
             def enc(sec, nsec, pos, vel, eff, _n=list(names), _f=frame_id):
-                return self._rosbags_js(_n, sec, nsec, pos, vel, eff, frame_id=_f)
+                sec = np.asarray(sec).reshape(-1)
+                rows = zip(sec.tolist(), np.asarray(nsec).reshape(-1).tolist(),
+                           *(np.asarray(v, dtype=float).reshape(sec.size, k)
+                             for v, k in zip((pos, vel, eff), sizes)))
+                return [self._rosbags_js(_n, s_, n_, p_, v_, e_, frame_id=_f)
+                        for s_, n_, p_, v_, e_ in rows]
         self._js[key] = enc
         return enc
+
+    def joint_state(self, names: list[str], sizes: tuple[int, int, int],
+                    frame_id: str = "") -> Callable:
+        """``(sec, nanosec, position, velocity, effort) -> CDR bytes`` of one message."""
+        block = self.joint_state_block(names, sizes, frame_id)
+
+        def enc(sec, nsec, pos, vel, eff):
+            out = block([sec], [nsec], [pos], [vel], [eff])
+            return out[0] if isinstance(out, list) else out.tobytes()
+        return enc
+
+
+def _joint_state_template(names, sizes, frame_id: str) -> tuple[np.ndarray, list[int]]:
+    """(the CDR of a JointState with stamp 0 and zeros, offset of each array's first double)
+    for fixed names and array sizes (XCDR1 little endian; the stamp is at bytes 4-12)."""
+    c = _Cdr()
+    c.buf += b"\x00" * 8                     # stamp: sec (int32), nanosec (uint32)
+    c.string(frame_id)
+    c.u32(len(names))
+    for nm in names:
+        c.string(nm)
+    at = []
+    for k in sizes:
+        c.u32(k)
+        if k:
+            c.align(8)
+        at.append(len(c.buf))
+        c.buf += b"\x00" * (8 * k)
+    return np.frombuffer(bytes(c.buf), np.uint8), at
+
+
+class _Stamp:
+    __slots__ = ("sec", "nanosec")
+
+    def __init__(self, sec: int, nanosec: int):
+        self.sec, self.nanosec = sec, nanosec
+
+
+class _Header:
+    __slots__ = ("stamp", "frame_id")
+
+    def __init__(self, stamp: _Stamp, frame_id: str):
+        self.stamp, self.frame_id = stamp, frame_id
+
+
+class JointStateView:
+    """A decoded JointState with the attributes of rosbags' (and rclpy's) message:
+    ``header.stamp.sec/nanosec``, ``header.frame_id``, ``name``, and the float64 arrays
+    ``position``, ``velocity``, ``effort`` (numpy, as rosbags gives them)."""
+
+    __slots__ = ("header", "name", "position", "velocity", "effort")
+
+    def __init__(self, header, name, position, velocity, effort):
+        self.header, self.name = header, name
+        self.position, self.velocity, self.effort = position, velocity, effort
+
+
+def _joint_state_layout(row: bytes) -> tuple[list[str], tuple[int, int, int], str]:
+    """(names, array sizes, frame_id) of one little-endian CDR JointState, or ValueError."""
+    if row[:4] != _CDR_LE:
+        raise ValueError("not little-endian CDR")
+    pos = 12
+
+    def string() -> str:
+        nonlocal pos
+        pos += (4 - pos) % 4
+        (n,) = _U32.unpack_from(row, pos)
+        if n < 1 or row[pos + 4 + n - 1] != 0:
+            raise ValueError("bad string")
+        text = row[pos + 4:pos + 3 + n].decode()
+        pos += 4 + n
+        return text
+
+    frame = string()
+    pos += (4 - pos) % 4
+    (count,) = _U32.unpack_from(row, pos)
+    pos += 4
+    if count > len(row):
+        raise ValueError("bad name count")
+    names = [string() for _ in range(count)]
+    sizes = []
+    for _ in range(3):
+        pos += (4 - pos) % 4
+        (k,) = _U32.unpack_from(row, pos)
+        pos += 4
+        if k:
+            pos += (4 - pos) % 8
+        pos += 8 * k
+        sizes.append(k)
+    if pos != len(row):
+        raise ValueError("length mismatch")
+    return names, tuple(sizes), frame
+
+
+def decode_joint_states(payloads) -> list[JointStateView] | None:
+    """Raw CDR JointState payloads of one fixed layout (same length, names, frame and array
+    sizes: one publisher) decoded at once with numpy; None for anything else (the caller
+    then deserialises them one by one with rosbags)."""
+    matrix = getattr(payloads, "matrix", None)
+    if matrix is None or not len(matrix):
+        return None
+    try:
+        names, sizes, frame = _joint_state_layout(matrix[0].tobytes())
+    except (ValueError, struct.error, UnicodeDecodeError):
+        return None
+    template, at = _joint_state_template(names, sizes, frame)
+    if template.size != matrix.shape[1]:
+        return None
+    fixed = np.ones(template.size, bool)
+    fixed[4:12] = False
+    for off, k in zip(at, sizes):
+        fixed[off:off + 8 * k] = False
+    if not np.array_equal(matrix[:, fixed], np.broadcast_to(template[fixed],
+                                                            (len(matrix), int(fixed.sum())))):
+        return None
+    sec = matrix[:, 4:8].copy().view("<i4").ravel().tolist()
+    nsec = matrix[:, 8:12].copy().view("<u4").ravel().tolist()
+    arrays = [matrix[:, off:off + 8 * k].copy().view("<f8") for off, k in zip(at, sizes)]
+    empty = np.zeros(0)
+    cols = [a if k else [empty] * len(matrix) for a, k in zip(arrays, sizes)]
+    return [JointStateView(_Header(_Stamp(s, n), frame), names, p, v, e)
+            for s, n, p, v, e in zip(sec, nsec, *cols)]

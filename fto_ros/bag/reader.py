@@ -11,6 +11,7 @@ names the path and the problem.
 """
 from __future__ import annotations
 
+import functools
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -54,6 +55,15 @@ class BagInfo:
 def jazzy_typestore():
     """A fresh rosbags typestore with the ROS 2 Jazzy message definitions."""
     return get_typestore(Stores.ROS2_JAZZY)
+
+
+@functools.lru_cache(maxsize=1)
+def shared_typestore():
+    """The process's Jazzy typestore for writing and decoding known types (never extended
+    with a bag's own types: BagReader has a fresh one): rosbags generates a type's
+    serialiser once per typestore, ~10-50 ms each, so every bag written in a process
+    shares them."""
+    return jazzy_typestore()
 
 
 def _describe(err: BaseException) -> str:

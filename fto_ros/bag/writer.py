@@ -1,10 +1,13 @@
-"""Write rosbag2 bags (MCAP storage, metadata version 9 = ROS 2 Jazzy) with rosbags.
+"""Write rosbag2 bags (MCAP storage, metadata version 9 = ROS 2 Jazzy).
 
-Messages are given as plain Python values; the writer builds and serializes the
-ROS 2 Jazzy messages itself.  The log time of every message is the ``t_ns``
-argument (integer nanoseconds, >= 0), normally the sample time.  Connections
-(topics) are created on first use.  Bags written here are read by
-``ros2 bag info/play`` on a ROS 2 Jazzy install.
+Messages are given as plain Python values (the writer builds and serializes the ROS 2
+Jazzy messages itself with rosbags' type store), as ready CDR bytes, or as blocks of many
+messages of one topic at once (:meth:`BagWriter.write_block`: the replay's fast path).
+The log time of every message is the ``t_ns`` argument (integer nanoseconds, >= 0),
+normally the sample time.  Connections (topics) are created on first use.  The MCAP file
+and metadata.yaml are laid out as rosbags' writer lays them out
+(:mod:`fto_ros.bag.mcap_write`); bags written here are read by ``ros2 bag info/play``
+on a ROS 2 Jazzy install.
 
 >>> with BagWriter("/tmp/example", overwrite=True) as bag:
 ...     bag.clock(0)
@@ -19,9 +22,11 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
-from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 
-from .reader import BagError, jazzy_typestore
+from .. import __version__
+from ..core.output_dir import create_output
+from .mcap_write import McapBag
+from .reader import BagError, shared_typestore
 
 FLOAT64_MULTI_ARRAY = "std_msgs/msg/Float64MultiArray"
 JOINT_STATE = "sensor_msgs/msg/JointState"
@@ -33,9 +38,6 @@ ROS_DISTRO = "jazzy"
 
 #: DiagnosticStatus level names -> values (diagnostic_msgs/msg/DiagnosticStatus)
 LEVELS = {"OK": 0, "WARN": 1, "ERROR": 2, "STALE": 3}
-
-#: files a bag directory may hold; ``overwrite=True`` only deletes such directories
-_BAG_FILE_SUFFIXES = (".mcap", ".db3", ".yaml", ".zstd", ".json", ".png", ".csv")
 
 
 def _ns(value: Any, name: str) -> int:
@@ -53,43 +55,44 @@ def _ns(value: Any, name: str) -> int:
     return out
 
 
-def _safe_to_remove(path: Path) -> bool:
-    """True if ``path`` is empty or looks like a bag directory (no subdirectories, only bag-ish files)."""
-    entries = list(path.iterdir())
-    if not entries:
-        return True
-    if not (path / "metadata.yaml").is_file() and not any(p.suffix == ".mcap" for p in entries):
-        return False
-    return all(p.is_file() and p.suffix in _BAG_FILE_SUFFIXES for p in entries)
-
-
 class BagWriter:
     """A rosbag2 (MCAP, version 9) bag being written; use as a context manager.
 
     Args:
         path: bag directory to create.
-        overwrite: if the path exists, remove it first (only if it is a file, an
-            empty directory or a bag directory; anything else raises BagError so
-            that a wrong ``--out`` cannot delete a source tree).  Without it an
-            existing path raises BagError.
+        overwrite: if the path exists, replace it, but only if it is an empty folder
+            or a bag fto_ros wrote (:mod:`fto_ros.core.output_dir`: anything else, a
+            file, a device, a symlink, a folder holding other things, raises
+            OutputError and nothing is removed).  Without it an existing path raises
+            OutputExists.
+        inputs: paths the bag must not replace, be inside of or contain (the input
+            bag and params files of the command writing it): OutputError.
         custom_data: key -> string pairs stored in metadata.yaml ``custom_data``.
         compress: zstd-compress the MCAP chunks (MCAP's own chunk compression,
             what ``ros2 bag record --storage-preset-profile zstd_fast`` does;
             metadata.yaml shows no compression mode and every MCAP reader
             handles it).  Bags of smooth simulated signals shrink ~3-5x.
+        level: the zstd level (3: zstd's and rosbags' default; the replay writes its
+            output bag at 1, half the time for a 7 % larger file).
 
-    If the ``with`` block raises, the half-written bag directory is removed.
+    Full MCAP chunks are compressed and written by a thread of their own while the caller
+    goes on.  The bag directory gets fto_ros's output marker, so that a later ``overwrite``
+    recognises it.  If the ``with`` block raises, the half-written bag directory is
+    removed.  ``counts`` is topic -> messages written.
     """
 
     def __init__(self, path: str | os.PathLike, *, overwrite: bool = False,
-                 custom_data: Mapping[str, str] | None = None, compress: bool = True):
+                 custom_data: Mapping[str, str] | None = None, compress: bool = True,
+                 level: int = 3, inputs: Iterable[str | os.PathLike] = ()):
+        self._path_arg = path
         self.path = Path(path)
         self.overwrite = overwrite
-        self.compress = compress
-        self.typestore = jazzy_typestore()
+        self.inputs = tuple(inputs)
+        self.compress, self.level = compress, level
+        self.typestore = shared_typestore()
         self._types = self.typestore.types
         self._custom: dict[str, str] = {}
-        self._writer: Writer | None = None
+        self._writer: McapBag | None = None
         for key, value in (custom_data or {}).items():
             self.set_custom_data(key, value)
         self._conns: dict[str, Any] = {}
@@ -111,35 +114,19 @@ class BagWriter:
 
     # -- lifecycle --------------------------------------------------------------------
     def open(self) -> "BagWriter":
-        """Create the bag directory (removing an old one if ``overwrite``)."""
+        """Create the bag directory (replacing an old bag if ``overwrite``)."""
         if self._writer is not None:
             raise BagError(f"{self.path}: bag is already open")
-        if self.path.exists() or self.path.is_symlink():
-            if not self.overwrite:
-                raise BagError(f"{self.path}: output exists already "
-                               f"(remove it or pass overwrite=True / --overwrite)")
-            try:
-                if self.path.is_dir() and not self.path.is_symlink():
-                    if not _safe_to_remove(self.path):
-                        raise BagError(f"{self.path}: refusing to overwrite: the directory "
-                                       f"is not a bag (it holds other files or folders)")
-                    shutil.rmtree(self.path)
-                else:
-                    self.path.unlink()
-            except OSError as err:
-                raise BagError(f"{self.path}: cannot remove the existing output: {err}") from err
         if not self.path.parent.is_dir():
             raise BagError(f"{self.path}: parent directory {self.path.parent} does not exist")
+        create_output(self._path_arg, "bag", overwrite=self.overwrite, inputs=self.inputs)
         try:
-            writer = Writer(self.path, version=9, storage_plugin=StoragePlugin.MCAP)
-            if self.compress:
-                writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
-            for key, value in self._custom.items():
-                writer.set_custom_data(key, value)
-            writer.open()
-        except Exception as err:
+            self._writer = McapBag(self.path, compress=self.compress, level=self.level,
+                                   library=f"fto_ros-{__version__}", ros_distro=ROS_DISTRO,
+                                   custom_data=self._custom, background=True)
+        except OSError as err:
+            shutil.rmtree(self.path, ignore_errors=True)
             raise BagError(f"{self.path}: cannot create bag: {err}") from err
-        self._writer = writer
         return self
 
     def close(self) -> None:
@@ -151,11 +138,6 @@ class BagWriter:
             writer.close()
         except Exception as err:
             raise BagError(f"{self.path}: cannot finish bag: {err}") from err
-        # rosbags writes its own name as the distribution; these bags are ROS 2 Jazzy's
-        meta = self.path / "metadata.yaml"
-        text = meta.read_text()
-        if "ros_distro: rosbags" in text:
-            meta.write_text(text.replace("ros_distro: rosbags", f"ros_distro: {ROS_DISTRO}", 1))
 
     def abort(self) -> None:
         """Stop writing and delete the half-written bag directory."""
@@ -184,41 +166,60 @@ class BagWriter:
                            f"got {key!r}: {type(value).__name__}")
         self._custom[key] = value
         if self._writer is not None:
-            self._writer.set_custom_data(key, value)
+            self._writer.custom_data[key] = value
 
     # -- low level --------------------------------------------------------------------
-    def _connection(self, topic: str, msgtype: str):
-        conn = self._conns.get(topic)
-        if conn is not None:
+    def _connection(self, topic: str, msgtype: str) -> int:
+        """The channel id of ``topic`` (created on first use) after checking its type."""
+        cid = self._conns.get(topic)
+        if cid is not None:
             if self._conn_types[topic] != msgtype:
                 raise BagError(f"{self.path}: topic {topic} already has type "
                                f"{self._conn_types[topic]}, cannot write {msgtype}")
-            return conn
+            return cid
         if self._writer is None:
             raise BagError(f"{self.path}: bag is not open (use 'with BagWriter(...)')")
         if not topic.startswith("/"):
             raise BagError(f"{self.path}: topic names must be absolute, got {topic!r}")
         try:
-            conn = self._writer.add_connection(topic, msgtype, typestore=self.typestore)
+            msgdef, _ = self.typestore.generate_msgdef(msgtype, ros_version=2)
+            cid = self._writer.add_connection(topic, msgtype, msgdef,
+                                              self.typestore.hash_rihs01(msgtype))
         except Exception as err:
             raise BagError(f"{self.path}: cannot add topic {topic} ({msgtype}): {err}") from err
-        self._conns[topic] = conn
+        self._conns[topic] = cid
         self._conn_types[topic] = msgtype
         self.counts[topic] = 0
-        return conn
+        return cid
+
+    def connect(self, topic: str, msgtype: str) -> None:
+        """Create ``topic``'s connection now (the order of connections is the order of the
+        topics in metadata.yaml; a connection made mid-bag puts its records there)."""
+        self._connection(topic, msgtype)
+
+    def write_block(self, topic: str, msgtype: str, t_ns, payloads) -> None:
+        """Many messages of one topic at once, in this order: ``t_ns`` (integer ns >= 0,
+        one per message) and their CDR bytes, an (n, L) uint8 matrix (every message L
+        bytes: written with no Python per message) or a sequence of bytes."""
+        cid = self._connection(topic, msgtype)
+        t = np.asarray(t_ns)
+        if t.size and (t.dtype.kind not in "iu" or t.min() < 0):
+            raise BagError(f"{self.path}: {topic}: log times must be integer ns >= 0")
+        if len(payloads) != t.size:
+            raise BagError(f"{self.path}: {topic}: {t.size} log times for {len(payloads)} "
+                           "messages")
+        self._writer.write_block(cid, t, payloads)
+        self.counts[topic] += t.size
 
     def raw_writer(self, topic: str, msgtype: str) -> Callable[[int, bytes], None]:
-        """A fast ``write(t_ns, cdr_bytes)`` for ``topic``: the caller serialises.
-
-        For tight loops (the replay harness writes one message per sample); the
-        topic's connection is created and checked once, here.
-        """
-        conn = self._connection(topic, msgtype)
+        """A ``write(t_ns, cdr_bytes)`` for ``topic``: the caller serialises (the topic's
+        connection is created and checked once, here)."""
+        cid = self._connection(topic, msgtype)
         write = self._writer.write
         counts = self.counts
 
         def write_raw(t_ns: int, data: bytes) -> None:
-            write(conn, t_ns, data)
+            write(cid, t_ns, data)
             counts[topic] += 1
         return write_raw
 
@@ -226,12 +227,12 @@ class BagWriter:
         """Write any rosbags Jazzy message object ``msg`` on ``topic`` at log time ``t_ns``."""
         t = _ns(t_ns, "t_ns")
         msgtype = msg.__msgtype__
-        conn = self._connection(topic, msgtype)
+        cid = self._connection(topic, msgtype)
         try:
             data = self._serialize(msg, msgtype)
         except Exception as err:
             raise BagError(f"{self.path}: cannot serialize {msgtype} for {topic}: {err}") from err
-        self._writer.write(conn, t, data)
+        self._writer.write(cid, t, data)
         self.counts[topic] += 1
 
     def _stamp(self, stamp_ns: int, name: str = "stamp_ns"):
@@ -300,3 +301,24 @@ class BagWriter:
         header = self._Header(stamp=self._stamp(t_ns if stamp_ns is None else stamp_ns),
                               frame_id="")
         self.write_message(topic, t_ns, self._DiagArray(header=header, status=statuses))
+
+
+def warm_up() -> None:
+    """Have rosbags generate the serialisers of the message types written here (once per
+    process, ~0.1 s; part of the one-time set-up, like the imports)."""
+    ts = shared_typestore()
+    T = ts.types
+    for msgtype in (FLOAT64_MULTI_ARRAY, JOINT_STATE, CLOCK, DIAGNOSTIC_ARRAY):
+        fields = {}
+        if msgtype == FLOAT64_MULTI_ARRAY:
+            fields = {"layout": T["std_msgs/msg/MultiArrayLayout"](dim=[], data_offset=0),
+                      "data": np.zeros(1)}
+        elif msgtype == CLOCK:
+            fields = {"clock": T["builtin_interfaces/msg/Time"](sec=0, nanosec=0)}
+        else:
+            header = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](
+                sec=0, nanosec=0), frame_id="")
+            fields = {"header": header, "name": [], "position": np.zeros(0),
+                      "velocity": np.zeros(0), "effort": np.zeros(0)} \
+                if msgtype == JOINT_STATE else {"header": header, "status": []}
+        ts.serialize_cdr(T[msgtype](**fields), msgtype)

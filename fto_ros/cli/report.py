@@ -21,8 +21,12 @@ The pairs are data, not code (:func:`plan`):
   merged first for every ``<system>_*.yaml`` that has no model of its own
   (:mod:`fto_ros.runner.plant_files`).
 
+``OUT`` is replaced on every run when it holds an earlier report (or is empty or new);
+anything else (a file, a symlink, a folder fto-report did not write, the bags or
+configs) is refused.
+
 Exit code 0 when every replay succeeded, 1 otherwise (the table is printed
-either way, failed rows included), 2 for usage errors.
+either way, failed rows included), 2 for usage errors and a refused ``OUT``.
 """
 from __future__ import annotations
 
@@ -32,6 +36,8 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from ..core.output_dir import REPORT_TITLE, OutputError, check_output, create_output
 
 
 PROG = "fto-report"
@@ -246,7 +252,7 @@ def table(pairs: list[Pair]) -> str:
 
 def markdown(pairs: list[Pair], notes: list[str], out: Path) -> str:
     """The whole report.md."""
-    lines = ["# fto_ros: observer comparison", "",
+    lines = [REPORT_TITLE, "",
              "Every bag replayed offline through every observer with `fto-replay` "
              "(the same runner code path as the live node).", "", tables(pairs), "",
              "- *guaranteed time*: the observer's guaranteed convergence time after a (re)start "
@@ -285,7 +291,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "available observer config and print side-by-side comparisons (also written "
                     "to OUT/report.md).")
     p.add_argument("--out", default="out", metavar="DIR",
-                   help="output directory (default: out); each replay goes to "
+                   help="output directory (default: out), replaced when it holds an earlier "
+                        "report, refused when it holds anything else; each replay goes to "
                         "DIR/<bag>__<config>/")
     p.add_argument("--bags-dir", default="bags", metavar="DIR", help="bags directory (default: bags)")
     p.add_argument("--config-dir", default="config", metavar="DIR",
@@ -320,17 +327,20 @@ def _main(args) -> int:
     prestart(args.workers)                   # the workers' imports start now, beside ours
     from ..sweep.tasks import Run, bag_size, execute
 
-    out, bags_dir, config_dir = Path(args.out), Path(args.bags_dir), Path(args.config_dir)
+    bags_dir, config_dir = Path(args.bags_dir), Path(args.config_dir)
     for d, what in ((bags_dir, "bags"), (config_dir, "config")):
         if not d.is_dir():
             print(f"{PROG}: error: {what} directory {d} does not exist (run from the repository "
                   f"root or pass --{what.split()[0]}-dir)", file=sys.stderr)
             return 1
+    # an earlier report in OUT is replaced (that is what the main job does every time),
+    # nothing else: checked before any work, removed once there is something to replay
+    inputs = (bags_dir, config_dir)
     try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        print(f"{PROG}: error: cannot create {out}: {err}", file=sys.stderr)
-        return 1
+        out = check_output(args.out, "report", overwrite=True, inputs=inputs)
+    except OutputError as err:
+        print(f"{PROG}: error: {err}", file=sys.stderr)
+        return 2
     pairs, notes = plan(bags_dir, config_dir)
     pairs += plan_examples(bags_dir, config_dir)
     for n in notes:
@@ -338,6 +348,11 @@ def _main(args) -> int:
     if not pairs:
         print(f"{PROG}: error: nothing to replay", file=sys.stderr)
         return 1
+    try:
+        create_output(out, "report", overwrite=True, inputs=inputs)
+    except OutputError as err:
+        print(f"{PROG}: error: {err}", file=sys.stderr)
+        return 2
     for p in pairs:
         p.out = out / p.name
         if not p.bag.exists():

@@ -6,10 +6,12 @@ Usage::
                  [--uncertainty] [--seed N] [--state-jump T,STATE,DELTA ...]
                  [--sample-times FILE | --sparse-min S --sparse-max S] [--overwrite]
     fto-simulate --params FILE [--params FILE ...] [--set NAME=VALUE] --out BAG [...]
+    fto-simulate --urdf FILE --out BAG [--joints ...] [--contact ...] [...]
 
 The second form simulates a user's plant block with the ``simulation.*`` parameters of the
 params files (:mod:`fto_ros.cli.simulate_plant`); ``--duration``, ``--rate``, ``--noise``
-and ``--seed`` override them when given.
+and ``--seed`` override them when given. The third simulates an arm from its URDF
+(:mod:`fto_ros.cli.simulate_arm`).
 
 Topics (``SYS`` = the model name, e.g. ``dc_motor``):
 
@@ -54,6 +56,7 @@ import numpy as np
 
 from .. import __version__
 from ..bag import BagError, BagWriter
+from ..core.output_dir import OutputError, OutputExists, check_output
 from ..models import MODELS
 from .args import non_negative_float, positive_float
 from ..models.simulate import quantize_ns, simulate, sparse_instants, to_ns, uniform_grid
@@ -108,7 +111,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="at time T (s) the state STATE (index or name) jumps by DELTA, "
                              "e.g. 5.0,q_dot,4 (a collision); repeatable")
     parser.add_argument("--overwrite", action="store_true",
-                        help="replace BAG if it exists (only if it is a bag directory)")
+                        help="replace BAG if it exists, only if it is an empty folder or a bag "
+                             "fto_ros wrote (never a file, a symlink, a device or another folder)")
     return parser
 
 
@@ -202,6 +206,10 @@ def _measurement_instants(args, parser, base: np.ndarray,
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``fto-simulate``; returns the exit code (argparse errors exit with 2)."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if any(a == "--urdf" or a.startswith("--urdf=") for a in argv):
+        from .simulate_arm import main as arm_main       # an arm from its URDF
+        return arm_main(argv)
     parser = build_parser()
     args = parser.parse_args(argv)
     defaults = dict(duration=10.0, rate=1000.0, noise=0.0, seed=0)
@@ -237,9 +245,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"model {spec.name} defines no output disturbance")
     if args.uncertainty and spec.uncertainty is None:
         parser.error(f"model {spec.name} defines no uncertainty")
-    out = Path(args.out)
-    if (out.exists() or out.is_symlink()) and not args.overwrite:
-        print(f"{PROG}: error: {out}: output exists already (use --overwrite)", file=sys.stderr)
+    inputs = [*args.params, *([args.sample_times] if args.sample_times else [])]
+    try:
+        out = check_output(args.out, "bag", overwrite=args.overwrite, inputs=inputs)
+    except OutputError as err:
+        print(f"{PROG}: error: {err}", file=sys.stderr)
+        return 2
+    except OutputExists as err:
+        print(f"{PROG}: error: {err}", file=sys.stderr)
         return 1
 
     jumps = _jumps(args, parser, spec)
@@ -340,7 +353,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     joints = list(spec.joint_names)
 
     try:
-        with BagWriter(out, overwrite=args.overwrite,
+        with BagWriter(out, overwrite=args.overwrite, inputs=inputs,
                        custom_data={METADATA_KEY: json.dumps(settings, sort_keys=True)}) as bag:
             for i, t in enumerate(t_all):
                 t_ns = to_ns(t)
@@ -356,7 +369,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                     if joints:
                         bag.joint_state(topics["joint_states"], t_ns, t_ns, joints, position=yj)
             counts = dict(bag.counts)
-    except BagError as err:
+    except OutputError as err:              # the output changed since it was checked
+        print(f"{PROG}: error: {err}", file=sys.stderr)
+        return 2
+    except (BagError, OutputExists) as err:
         print(f"{PROG}: error: {err}", file=sys.stderr)
         return 1
     total = time.perf_counter() - started

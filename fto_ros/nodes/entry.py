@@ -5,7 +5,9 @@ parameter or argument: one log line names it)."""
 from __future__ import annotations
 
 import gc
+import os
 import sys
+import tempfile
 from typing import Callable
 
 import rclpy
@@ -87,6 +89,37 @@ def precheck_params_files(args: list[str]) -> None:
             load_params_file(args[i + 1], node_fqn(args))
 
 
+def command_line_params_win(args: list[str], folder: str) -> list[str]:
+    """``args`` with the ``-p NAME:=VALUE`` of the command line restated, for the node, in a
+    params file given last (written in ``folder``), so that they win over every params file,
+    as the usage says.
+
+    rcl merges its overrides by node entry in the order each entry first appears: a
+    ``--params-file`` given before ``-p`` has its node's entry first and ``-p`` (the ``/**``
+    entry) wins, but given after ``-p`` its block outranks the command line.  A node-specific
+    entry written last always wins; rcl still parses the ``-p`` arguments themselves (and
+    refuses a malformed one), and the values are the same text, read by the same parser."""
+    pairs, in_ros = [], False
+    for i, a in enumerate(args):
+        if a == "--ros-args":
+            in_ros = True
+        elif a == "--":
+            in_ros = False
+        elif in_ros and a in ("-p", "--param") and i + 1 < len(args):
+            name, sep, value = args[i + 1].partition(":=")
+            # (an empty value or a comment: rcl itself refuses or unsets it, left to it)
+            if sep and name and value.strip() and not value.lstrip().startswith("#") \
+                    and "\n" not in value:
+                pairs.append((name, value))
+    if not pairs:
+        return args
+    path = os.path.join(folder, "command_line_params.yaml")
+    with open(path, "w") as f:
+        f.write(f"/{node_fqn(args)}:\n  ros__parameters:\n")
+        f.writelines(f"    {name}: {value}\n" for name, value in pairs)
+    return args + ["--ros-args", "--params-file", path]
+
+
 def _error_line(text: str) -> None:
     rclpy.logging.get_logger(NODE_NAME).error(text)
 
@@ -114,7 +147,8 @@ def run(make_node: Callable, prog: str, exe: str, managed: bool,
               "--ros-args (see --help)", file=sys.stderr)
         return 2
     try:
-        rclpy.init(args=args)
+        with tempfile.TemporaryDirectory(prefix="fto_ros_args_") as folder:
+            rclpy.init(args=command_line_params_win(args, folder))  # rcl reads the files here
     except Exception as exc:  # rcl's argument / params-file errors
         _error_line("fto_ros: cannot start: " + " ".join(str(exc).split()))
         return 2
@@ -133,6 +167,12 @@ def run(make_node: Callable, prog: str, exe: str, managed: bool,
         code = 2
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        # Ctrl-C while the executor builds its wait set: rclpy's signal handler shut the
+        # context down and the KeyboardInterrupt went elsewhere (a __del__), so spin()
+        # raises RCLError 'the given context is not valid': a shutdown too
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             node.destroy_node()

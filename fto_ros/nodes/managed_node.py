@@ -31,6 +31,11 @@ class ManagedObserverNode(ObserverCore, LifecycleNode):
         kwargs.setdefault("allow_undeclared_parameters", False)
         kwargs.setdefault("automatically_declare_parameters_from_overrides", False)
         super().__init__(node_name, **kwargs)
+        # rclpy (7.1.6, ros2/rclpy#1209) raises "Transition is not registered" out of the
+        # ~/change_state service for a transition id the current state does not have, and the
+        # exception ends the node: such requests are refused here, with a log line
+        self._rclpy_change_state = self._service_change_state.callback
+        self._service_change_state.callback = self._on_change_state
         raw = self._parameter_overrides.get("autostart")
         autostart = raw is not None and raw.type_ == Parameter.Type.BOOL and bool(raw.value)
         if autostart:
@@ -39,12 +44,33 @@ class ManagedObserverNode(ObserverCore, LifecycleNode):
                                   "the parameter)")
             self.trigger_activate()
 
+    def _on_change_state(self, request, response):
+        """~/change_state: a transition the current state has goes to rclpy; any other is
+        refused (success false) with a log line naming the ones it has."""
+        transition = request.transition
+        _, state = self._state_machine.current_state
+        have = [(t[0], t[1]) for t in self._state_machine.available_transitions]
+        if not any((transition.label == label) if transition.label else (transition.id == tid)
+                   for tid, label in have):
+            asked = f"'{transition.label}'" if transition.label else f"id {transition.id}"
+            self.get_logger().warning(
+                f"lifecycle: transition {asked} refused in state '{state}'; it has "
+                + (", ".join(f"'{label}' (id {tid})" for tid, label in have) or "none"))
+            response.success = False
+            return response
+        return self._rclpy_change_state(request, response)
+
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         try:
             self.configure()
         except ConfigError as exc:
             self._runner = None
             self.get_logger().error(f"fto_ros: bad parameter: {exc}")
+            return TransitionCallbackReturn.FAILURE
+        except Exception as exc:  # noqa: BLE001  an observer that cannot be built: stay unconfigured
+            self._runner = None
+            self.get_logger().error(f"fto_ros: cannot build the observer: {type(exc).__name__}: "
+                                    + " ".join(str(exc).split())[:300])
             return TransitionCallbackReturn.FAILURE
         return TransitionCallbackReturn.SUCCESS
 

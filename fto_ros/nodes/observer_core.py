@@ -35,10 +35,17 @@ from ..runner.runner import HELD, Runner
 from .outputs import REFRESH_S, Outputs
 from .parameters import NodeParameters, check_declared
 from .receipt_clock import ReceiptClock
+from .sources import SECOND_SOURCE, SOURCE_CHANGE, SourceTracker
 
 _NS = 1_000_000_000
 #: how often at most a summary of rejected samples is logged (s)
 LOG_THROTTLE_S = 5.0
+#: parameters only the outputs use: changed at run time without restarting the observer
+OUTPUT_ONLY = frozenset({"output.frame_id"})
+#: the node's own services keep every request and every response (ROS's default for services
+#: keeps the last 10 of each: of a burst of 1000 ~/reset calls, 20 were answered)
+SERVICE_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.VOLATILE)
 
 
 class ObserverCore:
@@ -59,6 +66,7 @@ class ObserverCore:
         self._dropped_disabled = 0
         self._enabled = True
         self._last_stamp: float | None = None
+        self._old_timeline: float | None = None
         self._rejected_since_log = 0
         self._last_reject_log = 0.0
         self._win_steady = time.monotonic()
@@ -87,25 +95,40 @@ class ObserverCore:
                             reliability=ReliabilityPolicy.BEST_EFFORT,
                             durability=DurabilityPolicy.VOLATILE)
 
-        def subscription(mtype, topic, callback):
-            return self.create_subscription(
+        self._sources: dict[str, SourceTracker] = {}
+        self._lost_events: dict[str, int] = {}
+
+        def subscription(key, mtype, topic, callback):
+            self._lost_events[key] = 0
+
+            def lost(event, key=key):       # the middleware's count (transport losses only)
+                self._lost_events[key] = event.total_count
+            sub = self.create_subscription(
                 mtype, topic, callback, in_qos,
                 qos_overriding_options=QoSOverridingOptions.with_default_policies(),
-                event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
+                event_callbacks=SubscriptionEventCallbacks(message_lost=lost,
+                                                           use_default_callbacks=False))
+            name = sub.topic_name
+            self._sources[key] = SourceTracker(lambda: self.count_publishers(name),
+                                               s["time.max_gap"], s["time.jump_threshold"])
+            return sub
         self._stamper = ReceiptClock(self)   # before the data subscriptions: first in a round
         if s["source"] == "topics":
             # input first: when u_k and y_k wait in the same executor round, u_k must be
             # stored before y_k is processed (u given at t holds from t on)
             if obs.n_inputs > 0:
-                ent.append(subscription(Float64MultiArray, s["topics.input"], self._on_input))
-            ent.append(subscription(Float64MultiArray, s["topics.measured_output"],
-                                    self._on_measured_output))
+                ent.append(subscription("input", Float64MultiArray, s["topics.input"],
+                                        self._on_input))
+            ent.append(subscription("measured_output", Float64MultiArray,
+                                    s["topics.measured_output"], self._on_measured_output))
         else:
-            ent.append(subscription(JointState, s["topics.joint_states"], self._on_joint_states))
+            ent.append(subscription("joint_states", JointState, s["topics.joint_states"],
+                                    self._on_joint_states))
         ent.append(self.create_subscription(JointState, "~/set_state", self._on_set_state_topic, 10))
-        ent.append(self.create_service(Trigger, "~/reset", self._on_reset))
-        ent.append(self.create_service(SetBool, "~/enable", self._on_enable))
-        ent.append(self.create_service(SetParameters, "~/set_state", self._on_set_state))
+        ent.append(self.create_service(Trigger, "~/reset", self._on_reset, qos_profile=SERVICE_QOS))
+        ent.append(self.create_service(SetBool, "~/enable", self._on_enable, qos_profile=SERVICE_QOS))
+        ent.append(self.create_service(SetParameters, "~/set_state", self._on_set_state,
+                                       qos_profile=SERVICE_QOS))
         # /diagnostics and the output subscriber check on the steady clock: they keep going
         # when sim time stops
         steady = Clock(clock_type=ClockType.STEADY_TIME)
@@ -133,9 +156,10 @@ class ObserverCore:
     def _apply_settings(self) -> None:
         """Cache the settings read per message."""
         s = self._runner.settings
-        self._future_tolerance = s["time.future_tolerance"]
         self._reset_on_jump = s["time.reset_on_jump"]
         self._jump_threshold = s["time.jump_threshold"]
+        for tracker in getattr(self, "_sources", {}).values():
+            tracker.set_limits(s["time.max_gap"], s["time.jump_threshold"])
 
     def _params_convert(self, params: list[Parameter]) -> list[Parameter]:
         return self._params.convert(params) if self._runner is not None else params
@@ -146,9 +170,16 @@ class ObserverCore:
         try:
             new = self._params.changed(params)
             if new is not None:
+                diff = {k for k in new.keys() | self._params.flat.keys()
+                        if new.get(k) != self._params.flat.get(k)}
+                if diff and diff <= OUTPUT_ONLY:     # the outputs' business: no restart
+                    return self._change_outputs(new, params)
                 self._runner.reconfigure(new)
         except ConfigError as exc:
-            return SetParametersResult(successful=False, reason=str(exc))
+            return self._refuse_change(params, str(exc))
+        except Exception as exc:  # noqa: BLE001  a change that cannot be built never kills the node
+            return self._refuse_change(params, f"cannot build the observer: {type(exc).__name__}: "
+                                               + " ".join(str(exc).split())[:300])
         if new is not None:
             self._params.flat = new
             old_threshold = self._jump_threshold
@@ -159,6 +190,25 @@ class ObserverCore:
                                    + ", ".join(f"{p.name}={p.value}" for p in params)
                                    + "; observer restarted")
         return SetParametersResult(successful=True)
+
+    def _change_outputs(self, new: dict, params: list[Parameter]) -> SetParametersResult:
+        """A change of what only the outputs use (output.frame_id): taken at once, the
+        observer runs on.  The runner's settings hold it for outputs built later (activate)."""
+        self._params.flat = new
+        frame = new["output.frame_id"]
+        self._runner.settings["output.frame_id"] = frame
+        if self._entities is not None:
+            self._out.set_frame(frame)
+        self.get_logger().info("parameters changed: "
+                               + ", ".join(f"{p.name}={p.value}" for p in params))
+        return SetParametersResult(successful=True)
+
+    def _refuse_change(self, params: list[Parameter], reason: str) -> SetParametersResult:
+        """Refuse a parameter change: the old observer runs on; the reason is logged too."""
+        self.get_logger().warning("parameter change refused ("
+                                  + ", ".join(f"{p.name}={p.value}" for p in params)
+                                  + f"): {reason}; the observer runs on unchanged")
+        return SetParametersResult(successful=False, reason=reason)
 
     def _check_undeclared_parameters(self, parameter_list: list[Parameter]):
         # rclpy's own check, with the names in the message ("undeclared parameter(s): [...]")
@@ -185,11 +235,27 @@ class ObserverCore:
         if t_last is None or t_last <= now + self._jump_threshold:
             return
         self._runner.time_jump(now)
+        # samples of the old timeline still in flight are stamped at about t_last and later
+        self._old_timeline = t_last - self._jump_threshold
         self.get_logger().warning(
             f"ROS time jumped back by {-jump.delta.nanoseconds * 1e-9:.3f} s: observer restarted",
             throttle_duration_sec=LOG_THROTTLE_S)
 
     # --------------------------------------------------------------- samples
+    def _from_old_timeline(self, t: float) -> bool:
+        """After the ROS clock jumped back, until a sample of the new timeline arrives, a
+        sample stamped on the old one (in flight at the jump) is rejected, counted as
+        'stamp_before_time_jump': it must not start the restarted observer.  This, not a
+        comparison with /clock (which may lag the data it is played with), is what keeps
+        the two timelines apart on sim time."""
+        if self._old_timeline is None:
+            return False
+        if t >= self._old_timeline:
+            self._reject("stamp_before_time_jump")
+            return True
+        self._old_timeline = None
+        return False
+
     def _reject(self, reason: str) -> None:
         """Count a rejection found by the node (not the runner) in the runner's counters."""
         self._runner.reject(reason)
@@ -210,15 +276,35 @@ class ObserverCore:
             self._last_reject_log = mono
             self._rejected_since_log = 0
 
+    def _from_owner(self, key: str, info: dict, t_ns: int) -> bool:
+        """Whether a message on data topic ``key`` is to be used: its publisher owns the
+        topic (sources.py); a second source's is rejected and counted.  Disabled: dropped."""
+        verdict = self._sources[key].check(info, t_ns)    # always: the losses stay exact
+        if not self._enabled:
+            if key != "input":
+                self._dropped_disabled += 1
+            return False
+        if verdict is None:
+            return True
+        if verdict == SOURCE_CHANGE:
+            self._runner.reset(SOURCE_CHANGE)
+            self.get_logger().warning(
+                f"{key}: its publisher was silent for time.max_gap with another one on the topic; "
+                "the samples are now taken from the other one (observer restarted)")
+            return True
+        self._reject(SECOND_SOURCE if key != "input" else "input_" + SECOND_SOURCE)
+        return False
+
     def _on_measured_output(self, msg: Float64MultiArray, info: dict) -> None:
         self._received["measured_output"] += 1
         self._win_received += 1
-        if not self._enabled:
-            self._dropped_disabled += 1
+        if not self._from_owner("measured_output", info, info.get("source_timestamp", 0)):
             return
         ns = self._stamper.receipt_ns(info)
         if ns is None:
             self._reject("waiting_for_clock")
+            return
+        if self._from_old_timeline(ns * 1e-9):
             return
         out = self._runner.process(ns * 1e-9, msg.data)
         if out.__class__ is str:
@@ -228,7 +314,7 @@ class ObserverCore:
 
     def _on_input(self, msg: Float64MultiArray, info: dict) -> None:
         self._received["input"] += 1
-        if not self._enabled:
+        if not self._from_owner("input", info, info.get("source_timestamp", 0)):
             return
         ns = self._stamper.receipt_ns(info)
         if ns is None:
@@ -238,25 +324,22 @@ class ObserverCore:
         if reason is not None:
             self._rejected(reason)
 
-    def _on_joint_states(self, msg: JointState) -> None:
+    def _on_joint_states(self, msg: JointState, info: dict) -> None:
         self._received["joint_states"] += 1
         self._win_received += 1
-        if not self._enabled:
-            self._dropped_disabled += 1
-            return
         stamp = msg.header.stamp
-        sim = self.get_clock().ros_time_is_active
-        if stamp.sec == 0 and stamp.nanosec == 0 and not sim:
-            self._reject("zero_stamp")
+        if not self._from_owner("joint_states", info, stamp.sec * _NS + stamp.nanosec):
             return
-        sample = joint_state_sample(msg, self._runner.settings)
+        # the stamp is checked against the wall clock, which cannot lag the data; on sim time
+        # not at all (/clock comes from the player of the data): the runner's rules, as replayed
+        clock = self.get_clock()
+        sample = joint_state_sample(msg, self._runner.settings,
+                                    None if clock.ros_time_is_active else clock.now().nanoseconds * 1e-9)
         if sample.__class__ is str:
             self._reject(sample)
             return
         t, y, u = sample
-        ns = self._stamper.now_ns()  # None under sim time before the first /clock: no check
-        if ns is not None and t - ns * 1e-9 > self._future_tolerance:
-            self._reject("future_stamp")
+        if self._from_old_timeline(t):
             return
         self._last_stamp = t
         if u is not None:
@@ -358,6 +441,15 @@ class ObserverCore:
             ("messages received: joint_states", str(self._received["joint_states"])),
             ("estimates published", str(self._published)),
             ("input message rate (Hz, wall clock)", f"{in_rate:.1f}"),
+        ]
+        # per data topic: its publishers, the owner's messages that never got here (sequence
+        # gaps: dropped in transport or overwritten in the queue), and the middleware's own
+        # message-lost count (transport losses only)
+        for key, tracker in self._sources.items():
+            values += [(f"publishers: {key}", str(tracker.publishers())),
+                       (f"messages lost: {key}", str(tracker.lost)),
+                       (f"messages lost (middleware event): {key}", str(self._lost_events[key]))]
+        values += [
             ("publish rate (Hz, wall clock)", f"{pub_rate:.1f}"),
             ("dropped: disabled", str(self._dropped_disabled)),
             ("sim time", str(self.get_clock().ros_time_is_active).lower()),

@@ -13,8 +13,10 @@ Every message carries the time of the measurement it is for (never now()):
   fields, then the observer's; non-finite values, i.e. "no guarantee", as -1.0);
 - ``~/estimated_joint_states`` when configured.
 
-Publishers are reliable, keep last 10, without QoS event handlers (each is rebuilt into
-the executor's wait set on every message: ~20 % of the node's CPU at 1 kHz; an
+Publishers are reliable, keep last 10 (overridable per publisher with the read-only
+parameters ``qos_overrides.<topic>.publisher.{depth,durability,history,reliability}``, as
+rclpy's QoSOverridingOptions declares them), without QoS event handlers (each is rebuilt
+into the executor's wait set on every message: ~20 % of the node's CPU at 1 kHz; an
 incompatible peer is still told by its own default handler).
 
 A per-sample topic nobody subscribes to is not published: a publish costs 15-25 us even
@@ -30,6 +32,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
@@ -59,9 +62,11 @@ class Outputs:
 
     def __init__(self, create_publisher, obs: Observer, settings):
         no_events = PublisherEventCallbacks(use_default_callbacks=False)
+        overridable = QoSOverridingOptions.with_default_policies()
 
         def pub(mtype, topic):
-            return create_publisher(mtype, topic, OUT_QOS, event_callbacks=no_events)
+            return create_publisher(mtype, topic, OUT_QOS, event_callbacks=no_events,
+                                    qos_overriding_options=overridable)
         frame = settings["output.frame_id"]
         self.est = pub(Float64MultiArray, "~/state_estimate")
         self.est_msg = labelled_array(obs.state_names)
@@ -90,6 +95,13 @@ class Outputs:
         self.publishers = self.per_sample + [self.diag]
         self.wanted: dict = {}
         self.refresh()
+
+    def set_frame(self, frame: str) -> None:
+        """header.frame_id of the stamped outputs from now on (output.frame_id changed)."""
+        for msg in (self.est_stamped_msg, getattr(self, "ui_stamped_msg", None),
+                    getattr(self, "js_msg", None)):
+            if msg is not None:
+                msg.header.frame_id = frame
 
     def refresh(self) -> None:
         """Which per-sample topics have a subscriber (the others are not published)."""

@@ -73,6 +73,31 @@ def typed_override(p: Param, full_name: str, param: Parameter) -> Any:
     return p.coerce(param.value, full_name)
 
 
+def _declare(node, full: str, p: Param, value: Any) -> None:
+    """Declare ``full`` so that it has a value: ``ros2 param get`` / ``dump`` (rclpy's
+    get_parameters service answers nothing at all for a request naming a parameter without
+    one).  An empty array: its type, then the empty array of that type (rclpy infers the type
+    of [] as a byte array); a scalar without a value (a derived or optional one): dynamically
+    typed and unset, since any value would change its meaning; its kind is in the
+    descriptor's constraints and the schema still checks every change (typed_override)."""
+    d = descriptor(p)
+    if value is None:
+        d.dynamic_typing = True
+        d.additional_constraints = "; ".join(
+            c for c in (f"type {p.kind}, unset: derived or not used", d.additional_constraints) if c)
+        node.declare_parameter(full, None, d, ignore_override=True)
+    elif p.kind in ARRAY_KINDS and len(value) == 0:
+        # a read-only one cannot be set after it is declared: writable until it holds []
+        writable = descriptor(p)
+        writable.read_only = False
+        node.declare_parameter(full, ROS_TYPE[p.kind], writable, ignore_override=True)
+        node.set_parameters([Parameter(full, ROS_TYPE[p.kind], [])])
+        d.type = ROS_TYPE[p.kind].value
+        node.set_descriptor(full, d)
+    else:
+        node.declare_parameter(full, value, d, ignore_override=True)
+
+
 class NodeParameters:
     """The declared parameters of one observer node and their typed values."""
 
@@ -117,12 +142,7 @@ class NodeParameters:
                 elif value is not None:
                     value = p.coerce(value, full)
                 try:
-                    if value is None or (p.kind in ARRAY_KINDS and len(value) == 0):
-                        # rclpy infers a type from the value, and [] has none: the type only
-                        node.declare_parameter(full, ROS_TYPE[p.kind], descriptor(p),
-                                               ignore_override=True)
-                    else:
-                        node.declare_parameter(full, value, descriptor(p), ignore_override=True)
+                    _declare(node, full, p, value)
                 except ParameterAlreadyDeclaredException:
                     pass
             self.specs[full] = p
@@ -153,7 +173,7 @@ class NodeParameters:
                     if p.kind in ARRAY_KINDS and len(value) == 0:
                         value = []
                     param = Parameter(param.name, ROS_TYPE[p.kind], value)
-                except (ConfigError, TypeError, ValueError):
+                except Exception:  # noqa: BLE001  (a pre-set callback that raises kills the node)
                     pass  # ROS refuses it with 'Wrong parameter type', naming both types
             out.append(param)
         return out

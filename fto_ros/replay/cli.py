@@ -1,10 +1,12 @@
 """``fto-replay BAG --params FILE --out OUT``: replay a bag offline, write outputs and metrics.
 
 Exit codes (the same contract as every fto_ros command): 0 done; 2 bad parameters
-or arguments (a params file or a value the schema refuses, a usage error); 1 a bad
-bag or a runtime failure (missing, corrupt or undecodable bag, a topic missing,
-an existing output, a replay that accepted no sample or fewer than
-``--min-accepted`` of them); 130 interrupted.  Always one ``fto-replay: error:
+or arguments (a params file or a value the schema refuses, a usage error, an ``--out``
+that is empty, is the input, is inside it or holds it, or that ``--overwrite`` may not
+replace because fto_ros did not write it); 1 a bad bag or a runtime failure (missing,
+corrupt or undecodable bag, a topic missing, an existing output without
+``--overwrite``, a replay that accepted no sample or fewer than ``--min-accepted`` of
+them); 130 interrupted.  Always one ``fto-replay: error:
 ...`` line on stderr, never a traceback; ``FTO_DEBUG=1`` shows the traceback of
 an unexpected error.
 """
@@ -40,7 +42,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--node-name", default=None, metavar="N",
                    help=f"node name: selects the params block and the output namespace "
                         f"(default {DEFAULT_NODE_NAME})")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing OUT")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an existing OUT, only if it is an empty folder or an output "
+                        "fto_ros wrote (never a file, a symlink, a device or another folder)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--after", type=non_negative_float, default=None, metavar="T",
                    help="settle time (s after the observer starts) for the 'after settling' "
@@ -103,6 +107,7 @@ def main(argv=None) -> int:
     try:
         from ..bag import BagError
         from ..core.errors import ConfigError
+        from ..core.output_dir import OutputError
         from .replay import ReplayError, replay
         from ..runner.params_file import parse_override
         overrides = dict(parse_override(text) for text in args.set)
@@ -113,7 +118,7 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted", file=sys.stderr)
         return 130
-    except ConfigError as err:
+    except (ConfigError, OutputError) as err:
         print(f"{PROG}: error: {one_line(err)}", file=sys.stderr)
         return 2
     except (BagError, ReplayError, OSError) as err:

@@ -28,12 +28,11 @@ How the messages drive the runner (what the node does on live topics):
   log time = sample time.  ``/diagnostics`` gets ``runner.status(t)`` every
   ``diagnostics.period`` seconds of bag time (1 s by default), plus a final one.
 
-Speed: the bag is read with a small MCAP fast path (chunks decompressed and
-scanned with ``struct``, Float64MultiArray payloads decoded in bulk with
-numpy; anything unusual falls back to :class:`~fto_ros.bag.BagReader`), and
-outputs are serialised from byte templates checked once against the rosbags
-serialiser.  ``metrics.json`` reports the measured speed and where the time
-went.
+Speed: the bag is read through its MCAP indexes, each topic cut out and decoded at once
+with numpy (anything unusual falls back to :class:`~fto_ros.bag.BagReader`); the outputs
+of each window of samples are encoded as byte blocks, checked once against the rosbags
+serialiser, and written a topic's block at a time (replay/outputs.py, bag/mcap_write.py).
+``metrics.json`` reports the measured speed and where the time went.
 """
 from __future__ import annotations
 
@@ -46,8 +45,8 @@ from typing import Any
 
 import numpy as np
 
-from ..bag import BagError
-from ..bag.reader import jazzy_typestore
+from ..bag.writer import warm_up
+from ..core.output_dir import check_output
 from ..plant.block import units_of
 from ..runner.params_file import load_params_files
 from ..runner.runner import LEVEL_NAMES, Runner
@@ -78,7 +77,9 @@ def replay(bag_path, params_path, out_dir, *, node_name: str | None = None,
             files override earlier ones, as several ``--params-file`` do); the
             blocks for ``node_name`` (and ``/**``) are used.
         out_dir: output bag directory; also receives ``metrics.json`` and
-            ``replay.png``.  Must not exist unless ``overwrite``.
+            ``replay.png``.  Must not exist unless ``overwrite``, and then it must be
+            an output fto_ros wrote (:mod:`fto_ros.core.output_dir`); never the input
+            bag, inside it or a folder holding it.
         node_name: node name for the params block and the output topic
             namespace (default ``observer_node``).
         progress: draw a progress bar on stderr (only on a terminal, and only
@@ -95,8 +96,9 @@ def replay(bag_path, params_path, out_dir, *, node_name: str | None = None,
             measurement samples, or none at all: a bag of junk is not a result.
 
     Returns the metrics (also written to ``metrics.json``).
-    Raises ConfigError (params), BagError (bags, existing output), ReplayError
-    (anything else that stops the replay), each with a one-line message.
+    Raises ConfigError (params), OutputError (an output path that is refused),
+    OutputExists (an existing output without ``overwrite``), BagError (bags),
+    ReplayError (anything else that stops the replay), each with a one-line message.
     """
     if isinstance(tolerance, bool) or not isinstance(tolerance, (int, float)) \
             or not (math.isfinite(tolerance) and tolerance > 0):
@@ -108,15 +110,15 @@ def replay(bag_path, params_path, out_dir, *, node_name: str | None = None,
         raise ReplayError(f"min_accepted must be a fraction in [0, 1], got {min_accepted!r}")
     params_paths = ([Path(p) for p in params_path] if isinstance(params_path, (list, tuple))
                     else [Path(params_path)])
-    bag_path, out_dir = Path(bag_path), Path(out_dir)
+    inputs = (bag_path, *params_paths)
+    bag_path = Path(bag_path)
     params_path = params_paths[-1]          # the tuning file, in titles and names
     fqn = node_fqn(node_name)
     flat = load_params_files(params_paths, node_name, overrides)
     runner = Runner(flat)
-    jazzy_typestore()  # one-time library set-up (~50 ms on first use), not part of the replay
+    warm_up()  # one-time library set-up (rosbags' serialisers, ~0.1 s), not part of the replay
     obs = runner.observer
-    if (out_dir.exists() or out_dir.is_symlink()) and not overwrite:
-        raise BagError(f"{out_dir}: output exists already (remove it or pass --overwrite)")
+    out_dir = check_output(out_dir, "bag", overwrite=overwrite, inputs=inputs)
     custom = {"fto_ros.replay.bag": str(bag_path),
               "fto_ros.replay.params": ", ".join(str(p) for p in params_paths),
               "fto_ros.replay.observer": obs.TYPE}
@@ -125,7 +127,7 @@ def replay(bag_path, params_path, out_dir, *, node_name: str | None = None,
     gc_was_enabled = gc.isenabled()
     gc.disable()
     try:
-        run = _run(runner, bag_path, out_dir, fqn, overwrite, progress, custom)
+        run = _run(runner, bag_path, out_dir, fqn, overwrite, progress, custom, inputs)
     finally:
         if gc_was_enabled:
             gc.enable()
@@ -167,12 +169,11 @@ def _check_accepted(m: dict, min_accepted: float) -> None:
 def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_dir: Path,
              fqn: str, after: float | None, tolerance: float) -> tuple[dict, dict]:
     """(metrics dict, plot arguments) of a finished run."""
-    obs, settings, info, streams = runner.observer, runner.settings, run.info, run.streams
+    obs, settings, inp = runner.observer, runner.settings, run.inputs
+    info, streams = inp.info, inp.streams
     names = list(obs.state_names)
     n = obs.n_states
-    t_est_ns = np.asarray(run.est_t, dtype=np.int64)
-    x_est = np.vstack(run.est_x) if run.est_x else np.zeros((0, n))
-    conv = np.vstack(run.est_conv) if run.est_conv else np.zeros((0, len(runner.convergence_fields)))
+    t_est_ns, x_est, conv = run.est_t, run.est_x, run.est_conv
     gt = float(obs.guaranteed_time)
     if after is not None:
         settle, settle_rule = float(after), "given (after= / --after)"
@@ -182,10 +183,10 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
         settle, settle_rule = M.default_settle_time(gt)
     t_start_ns = int(t_est_ns[0]) if t_est_ns.size else None
 
-    truth_note = run.truth_note
+    truth_note = inp.truth_note
     truth_t = truth_x = None
-    if "truth" in run.roles:
-        truth_t, truth_x, why = _truth_rows(streams.truth, run.truth_topic, n, "",
+    if "truth" in inp.roles:
+        truth_t, truth_x, why = _truth_rows(streams.truth, inp.truth_topic, n, "",
                                             f"the observer has {n} states")
         truth_note = why or truth_note
     errors = conv_time = err_t = err_norm = None
@@ -223,7 +224,7 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
         "observer_type": obs.TYPE,
         "state_names": names,
         "source": source,
-        "input_topics": {_ROLE_NAMES[k]: v for k, v in run.roles.items()},
+        "input_topics": {_ROLE_NAMES[k]: v for k, v in inp.roles.items()},
         "output_bag": str(out_dir),
         "output_topics": dict(sorted(run.counts.items())),
         "plot": None,
@@ -248,11 +249,11 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
             "absolute error over all states stays below 'tolerance' to the end of the bag; "
             "null if it never does or there is no ground truth"),
         "observer_start_s": None if t_start_ns is None else t_start_ns / 1e9,
-        "truth_topic": run.truth_topic if "truth" in run.roles else None,
+        "truth_topic": inp.truth_topic if "truth" in inp.roles else None,
         "errors": errors,
         "errors_note": truth_note,
         "update_time_us": {
-            **M.percentiles_us(np.asarray(run.proc_s) * 1e6),
+            **M.percentiles_us(run.proc_s * 1e6),
             "definition": "wall time of each Runner.process call that produced an output "
                           "(validation + observer update + output building), over every "
                           "accepted sample of the run"},
@@ -280,10 +281,10 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
     if "mode" in runner.convergence_fields:            # a composition (track)
         t_rel = (t_est_ns - t_start_ns) / 1e9 if t_start_ns is not None else np.zeros(0)
         metrics["composition"] = M.composition(t_rel, conv, runner.convergence_fields)
-    if ui_plot is not None or "truth_ui" in run.roles:
+    if ui_plot is not None or "truth_ui" in inp.roles:
         # only for observers that identify an unknown input, or bags that carry its truth
         metrics.update(
-            unknown_input_topic=run.truth_ui_topic if "truth_ui" in run.roles else None,
+            unknown_input_topic=inp.truth_ui_topic if "truth_ui" in inp.roles else None,
             unknown_input_errors=ui_errors, unknown_input_errors_note=ui_note)
     t0 = info.start_ns
     plot_data = dict(
@@ -304,7 +305,7 @@ def _truth_rows(stream, topic: str, width: int, kind: str, has: str):
     """(stamps, rows, None) of a ground-truth stream whose messages all carry ``width``
     values, or (None, None, why there are no error metrics)."""
     t, rows = stream
-    lengths = {len(v) for v in rows}
+    lengths = {rows.shape[1]} if isinstance(rows, np.ndarray) else {len(v) for v in rows}
     if not t.size:
         return None, None, f"no {kind}ground truth: topic {topic} has no messages"
     if lengths != {width}:
@@ -316,19 +317,19 @@ def _truth_rows(stream, topic: str, width: int, kind: str, has: str):
 def _unknown_input_errors(obs, run: _Run, t_est_ns: np.ndarray, conv: np.ndarray,
                           settle: float) -> tuple[dict | None, str | None, tuple | None]:
     """(errors like 'errors' but for the unknown input, a note, plot data) of a finished run."""
-    if not run.est_ui:
+    if not run.est_ui.size:
         note = None if not obs.has_unknown_input else \
             "the observer published no unknown-input estimate"
         return None, note, None
-    idx = np.asarray(run.est_ui_idx, dtype=np.int64)
-    ui = np.vstack(run.est_ui)
+    idx, ui = run.est_ui_idx, run.est_ui
     t_ui = t_est_ns[idx]
     q = ui.shape[1]
     names = list(getattr(obs, "unknown_input_names", None) or [f"zeta{j}" for j in range(q)])
     truth_t = truth_x = None
-    note = run.truth_ui_note
-    if "truth_ui" in run.roles:
-        truth_t, truth_x, why = _truth_rows(run.streams.truth_ui, run.truth_ui_topic, q,
+    note = run.inputs.truth_ui_note
+    if "truth_ui" in run.inputs.roles:
+        truth_t, truth_x, why = _truth_rows(run.inputs.streams.truth_ui,
+                                            run.inputs.truth_ui_topic, q,
                                             "unknown-input ", f"the estimate has {q}")
         note = why or note
     errors = None

@@ -20,9 +20,7 @@ def seconds_to_stamp_parts(t: float) -> tuple[int, int]:
     return ns // 1_000_000_000, ns % 1_000_000_000
 
 
-def _pick(msg, joints: Sequence[str], field: str) -> list[float] | str:
-    names = list(msg.name)
-    values = getattr(msg, field)
+def _pick(names: list[str], values, joints: Sequence[str], field: str) -> list[float] | str:
     if len(values) != len(names):
         return f"joint_states_{field}_missing"
     out = []
@@ -34,18 +32,42 @@ def _pick(msg, joints: Sequence[str], field: str) -> list[float] | str:
     return out
 
 
-def joint_state_sample(msg, settings: Mapping[str, Any]) -> tuple[float, list[float], list[float] | None] | str:
-    """(t, y, u) from a JointState per the ``joint_states.*`` settings, or a rejection reason.
+def joint_state_sample(msg, settings: Mapping[str, Any], clock: float | None = None
+                       ) -> tuple[float, list[float], list[float] | None] | str:
+    """(t, y, u) from a JointState per the ``joint_states.*`` settings, or a rejection reason:
+    the one intake of the node and the replay.  u is None when no input joints are configured.
 
-    u is None when no input joints are configured.
+    ``clock`` is the time (s) the header stamp is checked against, one that cannot lag the
+    data: the node's wall clock, the replay's log time (the recording's receipt time); None
+    (the node on sim time, where /clock comes from the player of the data and may lag it,
+    or before any /clock): no check, the runner's own stamp rules apply, as in the replay.
+    Rejected, in this order:
+
+    - ``joint_states_duplicate_name``: a joint named twice (which value is meant?);
+    - ``joint_states_joint_missing``: a configured joint absent; ``joint_states_<field>_missing``:
+      a field that is used whose length is not that of ``name``;
+    - ``zero_stamp``: a header stamp of exactly 0 (an unstamped message) while the clock reads
+      more than ``time.max_gap``: a bag or a simulation that starts at 0 may stamp 0;
+    - ``future_stamp``: a stamp more than ``time.future_tolerance`` ahead of the clock.
     """
-    t = stamp_seconds(msg.header.stamp)
-    y = _pick(msg, settings["joint_states.output_joints"], settings["joint_states.output_field"])
+    names = list(msg.name)
+    if len(set(names)) != len(names):
+        return "joint_states_duplicate_name"
+    y = _pick(names, getattr(msg, settings["joint_states.output_field"]),
+              settings["joint_states.output_joints"], settings["joint_states.output_field"])
     if isinstance(y, str):
         return y
     u = None
     if settings["joint_states.input_joints"]:
-        u = _pick(msg, settings["joint_states.input_joints"], settings["joint_states.input_field"])
+        u = _pick(names, getattr(msg, settings["joint_states.input_field"]),
+                  settings["joint_states.input_joints"], settings["joint_states.input_field"])
         if isinstance(u, str):
             return u
+    stamp = msg.header.stamp
+    t = stamp_seconds(stamp)
+    if clock is not None:
+        if stamp.sec == 0 and stamp.nanosec == 0 and clock > settings["time.max_gap"]:
+            return "zero_stamp"
+        if t - clock > settings["time.future_tolerance"]:
+            return "future_stamp"
     return t, y, u

@@ -75,8 +75,9 @@ SETTINGS: tuple[Param, ...] = (
           "else such samples are rejected", read_only=False),
     Param("time.jump_threshold", "double", 0.5, "backward jump (s) treated as a time reset",
           min=0.0, max=1e6, read_only=False),
-    Param("time.future_tolerance", "double", 0.5, "node only: JointState stamps further than this (s) "
-          "ahead of the node clock are rejected as 'future_stamp'", min=0.0, read_only=False),
+    Param("time.future_tolerance", "double", 0.5, "JointState stamps further than this (s) ahead "
+          "of the wall clock (node without sim time) or the log time (replay) are rejected as "
+          "'future_stamp'", min=0.0, read_only=False),
     Param("limits.measurement", "double_array", [1e12], "plausibility: a measurement with |y_i| "
           "above this is rejected as 'measurement_implausible' (one value for every output, or "
           "one per output)", gt=0.0, read_only=False),
@@ -112,7 +113,8 @@ SETTINGS: tuple[Param, ...] = (
           "check; 0 disables it", min=0.0, read_only=False),
     Param("diagnostics.hardware_id", "string", "", "node only: hardware_id in /diagnostics"),
     Param("output.frame_id", "string", "", "header.frame_id of the stamped outputs "
-          "(state_estimate_stamped, unknown_input_estimate_stamped, estimated_joint_states)"),
+          "(state_estimate_stamped, unknown_input_estimate_stamped, estimated_joint_states)",
+          read_only=False),
     Param("autostart", "bool", False, "managed node only: configure and activate at start-up "
           "(else it waits in 'unconfigured' for the lifecycle services)"),
     Param("metrics.settle_time", "double", 0.0, "replay only: errors are summarised from this "

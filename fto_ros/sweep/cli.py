@@ -14,9 +14,10 @@ printed: the best setting per bag and over all bags) and the figures
 error.  See docs/sweep.md.
 
 Exit codes: 0 done (some runs may have been refused for their parameters), 2 bad arguments
-or parameters (usage, a params file, a ``--set`` name or value, every run refused), 1 a bad
-bag or a run-time failure (a missing bag, a run that failed for its bag, an unreachable
-cluster), 130 interrupted.  One ``fto-sweep: error: ...`` line, never a traceback
+or parameters (usage, a params file, a ``--set`` name or value, an ``--out`` that exists
+without ``--overwrite``, is or holds an input, or is not an earlier sweep's output, every
+run refused), 1 a bad bag or a run-time failure (a missing bag, a run that failed for its
+bag, an unreachable cluster), 130 interrupted.  One ``fto-sweep: error: ...`` line, never a traceback
 (``FTO_DEBUG=1`` shows the traceback of an unexpected error).
 """
 from __future__ import annotations
@@ -85,7 +86,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "DIR must be on storage the workers share)")
     p.add_argument("--no-plots", action="store_true", help="write no figures")
     p.add_argument("--overwrite", action="store_true",
-                   help="replace the results of an earlier sweep in DIR")
+                   help="replace DIR if it is an earlier sweep's output (or empty); never "
+                        "anything fto-sweep did not write")
     # the defaults are fto-replay's, said in words: importing them would import the whole
     # replay before the progress bar can show (test_sweep.py checks that they agree)
     p.add_argument("--tolerance", type=positive_float, default=None, metavar="TOL",
@@ -126,6 +128,7 @@ def _main(args) -> int:
 def _sweep(args, progress) -> int:
     from ..cli.progress import say
     from ..core.errors import ConfigError
+    from ..core.output_dir import OutputError, OutputExists, check_output, create_output
     from ..runner.params_file import load_params_files
     from . import grid, plots, results
     from .engine import Engine, EngineError, Lost
@@ -144,10 +147,11 @@ def _sweep(args, progress) -> int:
             load_params_files(files, args.node_name)
     except ConfigError as err:
         return _fail(2, str(err))
-    out = Path(args.out)
-    if (out / "results.csv").exists() and not args.overwrite:
-        return _fail(2, f"{out} holds the results of an earlier sweep (choose another --out or "
-                        "pass --overwrite)")
+    inputs = [*args.bag, *args.params, *(f for files in baselines for f in files)]
+    try:
+        out = check_output(args.out, "sweep", overwrite=args.overwrite, inputs=inputs)
+    except (OutputError, OutputExists) as err:
+        return _fail(2, str(err))
     for bag in args.bag:
         if not Path(bag).exists():
             return _fail(1, f"bag {bag} does not exist")
@@ -198,9 +202,9 @@ def _sweep(args, progress) -> int:
                 arglists = [(r, sent[r.bag_path], tuple(sent[p] for p in r.params_paths))
                             for r in runs]
             try:
-                out.mkdir(parents=True, exist_ok=True)
-            except OSError as err:
-                return _fail(1, f"cannot create {out}: {err}")
+                create_output(out, "sweep", overwrite=args.overwrite, inputs=inputs)
+            except (OutputError, OutputExists) as err:
+                return _fail(2, str(err))
             if not args.quiet:
                 say(progress, f"{PROG}: {len(runs)} run(s) on {engine.description}")
             outcomes = engine.map(execute, arglists, costs=[costs[r.bag] for r in runs],

@@ -1,0 +1,208 @@
+"""External joint torques of an arm: the adapters around the pure steps of :mod:`.steps`.
+
+Each adapter owns a design (its constants), the restart and the calls to Pinocchio, and is
+transactional: a sample it cannot use (not one finite value per joint, an absurd value, a
+stamp that is not one sample period after the last) raises :class:`SampleRejected` and
+leaves every state as it was; after a gap, ``reset()``. ``update(t, q, tau)`` takes the measured positions at t and the torques
+commanded at t (they act until the next sample) and returns the tau_ext estimate, or None
+while it has none yet; ``velocity`` is the joint-velocity estimate at the last sample.
+
+- :class:`WindowEstimator`: the package's estimator (docs/external_torque.md): velocities
+  from the robust exact differentiator, tau_ext from the windowed momentum identity, exact
+  T after any change of tau_ext up to the encoder noise, whose gain it states;
+- :class:`MomentumObserver`: the generalized-momentum observer (the baseline), on the
+  velocities of the differentiator or of a backward difference;
+- :class:`FiniteDifference`: backward differences through the inverse dynamics.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from . import steps
+from .model import RigidBodyModel
+
+
+def run_over(est, t, q, tau) -> tuple[np.ndarray, np.ndarray]:
+    """(tau_ext estimates, velocity estimates) of a restarted ``est`` over a recording: per
+    sample k the estimate after ``est.update(t[k], q[k], tau[k])`` (NaN while there is none)."""
+    est.reset()
+    E, V = np.full(np.shape(q), np.nan), np.zeros(np.shape(q))
+    for k in range(len(t)):
+        out = est.update(t[k], q[k], tau[k])
+        if out is not None:
+            E[k] = out
+        V[k] = est.velocity
+    return E, V
+
+
+class SampleRejected(ValueError):
+    """A sample the estimator cannot use; its state is unchanged."""
+
+
+class _Estimator:
+    def __init__(self, model: RigidBodyModel, sample_period: float):
+        if not (isinstance(sample_period, (int, float)) and 0 < sample_period < 1):
+            raise ValueError(f"sample_period: must be in (0, 1) s, got {sample_period!r}")
+        self.model, self.n, self.h = model, model.n, float(sample_period)
+        self.velocity = np.zeros(self.n)
+        self.tau_ext = None
+        self.reset()
+
+    def reset(self) -> None:
+        """Restart at the next sample."""
+        self._t = None
+        self.tau_ext = None
+        self._restart()
+
+    def _inputs(self, t, q, tau):
+        vectors = []
+        for name, x in (("positions", q), ("torques", tau)):
+            try:
+                arr = np.asarray(x, dtype=float)
+            except (TypeError, ValueError):
+                raise SampleRejected(f"{name}: not numbers") from None
+            if arr.shape != (self.n,):
+                raise SampleRejected(f"{name}: need {self.n} values, got shape {arr.shape}")
+            vectors.append(arr)
+        if not (isinstance(t, (int, float, np.floating)) and math.isfinite(t)):
+            raise SampleRejected(f"the stamp {t!r} is not a finite number")
+        h = None if self._t is None else t - self._t
+        if h is not None and not abs(h - self.h) <= 1e-3 * self.h:
+            raise SampleRejected(f"the step {h!r} s is not the sample period {self.h!r} s "
+                                 f"(within 0.1 %): restart after a gap")
+        try:
+            steps._check(self.h, vectors[0], vectors[1], self.n)
+        except ValueError as err:
+            raise SampleRejected(str(err)) from None
+        return h, vectors[0], vectors[1]
+
+    def update(self, t: float, q, tau):
+        h, q, tau = self._inputs(t, q, tau)
+        try:
+            self._update(h, q, tau)
+        except ValueError as err:
+            raise SampleRejected(str(err)) from None
+        self._t = float(t)
+        return self.tau_ext
+
+    def _phi(self, q, v):
+        """(M, Mdot, C^T v - g - Coulomb friction) at (q, v)."""
+        M, Md, CTv, g = self.model.momentum_terms(q, v)
+        m = self.model
+        return M, Md, CTv - g - m.coulomb * np.tanh(v / m.friction_width)
+
+
+class WindowEstimator(_Estimator):
+    """The windowed momentum estimator (docs/external_torque.md).
+
+    Args:
+        window: T in seconds (a whole number of sample periods, at least 8).
+        velocity_order, velocity_L, velocity_rho: the differentiator of the velocities."""
+
+    def __init__(self, model: RigidBodyModel, sample_period: float = 1e-3, window: float = 0.06,
+                 velocity_order: int = 2, velocity_L: float = 300.0, velocity_rho: float = 2.0,
+                 central: int = steps.CENTRAL):
+        W = round(window / sample_period)
+        if not (8 <= W <= 2000 and abs(W * sample_period - window) < 1e-9 + 1e-6 * window):
+            raise ValueError(f"window: must be 8..2000 sample periods, got {window!r} s")
+        self.samples = W
+        self.window = W * sample_period
+        self._red_c = steps.red_consts(velocity_order, velocity_L, velocity_rho)
+        self._win_c = steps.window_consts(model.n, W, sample_period, model.viscous, central)
+        super().__init__(model, sample_period)
+
+    @property
+    def guaranteed_time(self) -> float:
+        """From a restart, the estimate exists and is exact (up to noise) after T."""
+        return self.window
+
+    def _restart(self):
+        self._red = None
+        self._win = steps.window_init(self._win_c)
+
+    def _update(self, h, q, tau):
+        red = steps.red_init(self._red_c, q) if h is None else \
+            steps.red_step(self._red, self._red_c, h, q)
+        v = steps.red_output(red, self._red_c, self.n)[:, 1].copy()
+        M, Md, phi = self._phi(q, v)
+        central = steps.window_central(self._win, self._win_c, q)
+        Md_c = phi_c = None
+        if central is not None:
+            _, Md_c, phi_c = self._phi(*central)
+        win = steps.window_step(self._win, self._win_c, self.h if h is None else h, q, tau,
+                                M, Md, phi, Md_c, phi_c)
+        self._red, self._win, self.velocity = red, win, v
+        out = steps.window_output(win, self._win_c)
+        self.tau_ext = None if out is None else out.copy()
+
+    def noise_gain(self, q) -> np.ndarray:
+        """Per joint, the standard deviation of the estimate per unit (rad) of white encoder
+        noise at the configuration q: ||a|| ||M_i,:|| (the kernel's second-derivative weights,
+        docs/external_torque.md)."""
+        n, W = self.n, self.samples
+        a = self._win_c[4 + n:4 + n + W + 1]
+        return np.linalg.norm(a) * np.linalg.norm(self.model.mass_matrix(q), axis=1)
+
+    def step_response(self, elapsed: float) -> float:
+        """Fraction of a step of tau_ext shown ``elapsed`` s after it: K(elapsed / T)."""
+        s = min(max(elapsed / self.window, 0.0), 1.0)
+        return float(steps.kernel(s, -1))
+
+
+class MomentumObserver(_Estimator):
+    """The generalized-momentum observer with gain K_O (1/s) on every joint, fed the
+    velocities of the differentiator (``velocity='differentiator'``) or of a backward
+    difference (``'difference'``)."""
+
+    def __init__(self, model: RigidBodyModel, sample_period: float = 1e-3, gain: float = 50.0,
+                 velocity: str = "difference", velocity_order: int = 2, velocity_L: float = 300.0,
+                 velocity_rho: float = 2.0):
+        if velocity not in ("difference", "differentiator"):
+            raise ValueError(f"velocity: 'difference' or 'differentiator', got {velocity!r}")
+        g = np.broadcast_to(np.asarray(gain, dtype=float), (model.n,)).copy()
+        if not np.all(np.isfinite(g) & (g > 0)):
+            raise ValueError(f"gain: must be finite and > 0, got {gain!r}")
+        self.gain, self.source = g, velocity
+        self._red_c = steps.red_consts(velocity_order, velocity_L, velocity_rho)
+        super().__init__(model, sample_period)
+
+    guaranteed_time = math.inf
+
+    def _restart(self):
+        self._vel = None
+        self._gmo = steps.gmo_init(self.n)
+
+    def _update(self, h, q, tau):
+        if self.source == "differentiator":
+            vel = steps.red_init(self._red_c, q) if h is None else \
+                steps.red_step(self._vel, self._red_c, h, q)
+            v = steps.red_output(vel, self._red_c, self.n)[:, 1].copy()
+        else:
+            vel = steps.fd_init(self.n) if h is None else self._vel
+            v, _ = steps.fd_velocity(vel, self.h if h is None else h, q)
+            # fd_step keeps the past positions (its own estimate is not used here)
+            vel = steps.fd_step(vel, self.h if h is None else h, q, tau, np.zeros(self.n))
+        M, _, CTv, g = self.model.momentum_terms(q, v)
+        beta = CTv - g - self.model.friction(v)
+        gmo = steps.gmo_step(self._gmo, self.gain, self.h if h is None else h, q, tau, M @ v, beta)
+        self._vel, self._gmo, self.velocity = vel, gmo, v
+        self.tau_ext = steps.gmo_output(gmo, self.n).copy() if h is not None else None
+
+
+class FiniteDifference(_Estimator):
+    """tau_ext = M a + C v + g + tau_f - tau with v, a backward differences."""
+
+    guaranteed_time = math.inf
+
+    def _restart(self):
+        self._fd = steps.fd_init(self.n)
+
+    def _update(self, h, q, tau):
+        ready = self._fd[0] >= 2                  # q_(k-1), q_(k-2) and tau_(k-1) are in
+        hh = self.h if h is None else h
+        v, a = steps.fd_velocity(self._fd, hh, q)
+        fd = steps.fd_step(self._fd, hh, q, tau, self.model.inverse_dynamics(q, v, a))
+        self._fd, self.velocity = fd, v
+        self.tau_ext = steps.fd_output(fd, self.n).copy() if ready else None
