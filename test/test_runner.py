@@ -830,25 +830,25 @@ def test_sampled_input_advances_the_predictor(sparse):
     assert kind == 0 and t_in > t_meas
     # the runner applies the input when a measurement reaches its stamp (an input stamped
     # ahead cannot move the prediction past measurements still to come): the same as
-    # advancing the observer at once
-    twin = copy.deepcopy(r)
+    # advancing the observer at once, then giving it the measurement with that input
+    twin = copy.deepcopy(obs)
     assert r.set_input(t_in, s.u[j]) is None
-    assert obs._s == pytest.approx(t_meas - s.t[0], abs=1e-9)
-    twin.observer.advance(t_in, s.u[j])
-    assert twin.observer._s == pytest.approx(t_in - s.t[0], abs=1e-9)  # integrated to the input
-    assert not np.array_equal(twin.observer.estimate, x_meas)
+    assert obs._s == pytest.approx(t_meas - s.t[0], abs=1e-9)   # not moved yet
+    twin.advance(t_in, s.u[j])
+    assert twin._s == pytest.approx(t_in - s.t[0], abs=1e-9)    # integrated to the input
+    assert not np.array_equal(twin.estimate, x_meas)
     # the measured component is the predictor omega between samples
-    assert twin.observer.estimate[0] != s.y[99][0]
-    twin._u, twin._t_input = r._u, r._t_input
+    assert twin.estimate[0] != s.y[99][0]
     k = next(i for i in range(100, len(s.t)) if s.t[i] > t_in)
-    a, b = r.process(s.t[k], s.y[k]), twin.process(s.t[k], s.y[k])
-    np.testing.assert_array_equal(a.estimate, b.estimate)
+    a = r.process(s.t[k], s.y[k])
+    twin.update_checked(s.t[k], s.y[k], s.u[j])
+    np.testing.assert_array_equal(a.estimate, twin.estimate)
     # an input stamped before the last measurement does not move the observer
-    twin = copy.deepcopy(r)
+    twin = copy.deepcopy(obs)
     assert r.set_input(s.t[k] - 1e-4, s.u[j]) is None
-    twin._u, twin._t_input = r._u, r._t_input
-    a, b = r.process(s.t[k] + 1e-4, s.y[k]), twin.process(s.t[k] + 1e-4, s.y[k])
-    np.testing.assert_array_equal(a.estimate, b.estimate)
+    a = r.process(s.t[k] + 1e-4, s.y[k])
+    twin.update_checked(s.t[k] + 1e-4, s.y[k], s.u[j])
+    np.testing.assert_array_equal(a.estimate, twin.estimate)
 
 
 def test_sampled_advance_matches_prediction_without_inputs(sparse):

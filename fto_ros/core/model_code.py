@@ -96,6 +96,10 @@ class _ArrayPrinter(_Printer):
         name = self._names.get(e)
         return name if name is not None else super()._print_Symbol(e)
 
+    def _print_Dummy(self, e):           # the plant layer's dummies (newton's u_d1) too
+        name = self._names.get(e)
+        return name if name is not None else super()._print_Dummy(e)
+
 
 def _source(exprs: Sequence[sympy.Expr], groups: Sequence[Sequence[sympy.Symbol]]) -> str:
     names = {}
