@@ -8,7 +8,9 @@ output's size, so one unit in the last place of the estimate moves it by eps |y|
 its own size: convergence values are compared at the scale of the measured output when
 that is the larger (measured: the EKF's NIS on fld_example2, whose output reaches 1.4e10,
 moves by 3.6e-5 of its own scale between the compiled and the numpy exponential; the
-estimates agree within 3.1e-13).
+estimates agree within 3.1e-13), and at twice the estimates' bar: the NIS is a quadratic
+form in that residual, so its relative deviation is twice the residual's (measured: 1.33e-12
+of its scale on possieri_example's EKF, in the transient from a far start).
 
 Bit for bit where the kernel and the numpy code did the same arithmetic through the same
 BLAS: measured exactly equal for the compiled Luenberger kernel on every pair.  The
@@ -28,13 +30,14 @@ DATA, META = RR.load_reference()
 NAMES = {v: k for k, v in META["reasons"].items()}
 PAIRS = META["pairs"]
 TOL = 1e-12
+CONV_TOL = 2 * TOL
 
 
 def _id(p):
     return f"{p['bag']}-{p['params'][-1].rsplit('/', 1)[-1][:-5]}"
 
 
-def _close(name, got, ref, floor=1.0):
+def _close(name, got, ref, floor=1.0, tol=TOL):
     assert got.shape == ref.shape, f"{name}: {got.shape} outputs, reference {ref.shape}"
     if not ref.size:
         return 0.0
@@ -43,7 +46,7 @@ def _close(name, got, ref, floor=1.0):
     scale = np.maximum(floor, np.abs(np.where(finite, ref, 0.0)).max(axis=0))
     with np.errstate(invalid="ignore"):
         err = float((np.abs(np.where(finite, got - ref, 0.0)) / scale).max())
-    assert err <= TOL, f"{name}: largest deviation {err:.3g} of the state's scale (bar {TOL})"
+    assert err <= tol, f"{name}: largest deviation {err:.3g} of the state's scale (bar {tol})"
     return err
 
 
@@ -65,4 +68,4 @@ def test_pair_reproduces_the_reference(pair):
     # the outputs' size over the accepted measurements (junk a pair rejects does not count)
     y_scale = max([abs(v) for c in log if c[0] == 1 and c[3] is not None
                    and not isinstance(c[3], str) for v in c[2]] + [1.0])
-    _close("convergence", conv, DATA[pair["key"] + "_conv"], floor=y_scale)
+    _close("convergence", conv, DATA[pair["key"] + "_conv"], floor=y_scale, tol=CONV_TOL)
