@@ -24,7 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_update import matvec_baseline, time_calls  # noqa: E402
-from fto_ros.observers.base import resolve  # noqa: E402
+from fto_ros.core.params import resolve  # noqa: E402
 from fto_ros.observers.global_norm import GlobalNormObserver  # noqa: E402
 from fto_ros.observers.high_gain import HighGainObserver  # noqa: E402
 from fto_ros.runner import Runner  # noqa: E402

@@ -13,7 +13,8 @@ from scipy.linalg import expm
 from fto_ros.core.errors import ConfigError
 from fto_ros.models import dc_motor
 from fto_ros.models.simulate import simulate
-from fto_ros.observers.base import SampleRejected, resolve
+from fto_ros.core.params import resolve
+from fto_ros.observers.base import SampleRejected
 from fto_ros.observers.ekf import ExtendedKalmanFilter as EKF
 from fto_ros.plant import resolve_plant
 from fto_ros.plant.block import compiled

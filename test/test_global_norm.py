@@ -13,7 +13,8 @@ from scipy.linalg import expm
 
 from fto_ros.core.errors import ConfigError
 from fto_ros.observers import REGISTRY
-from fto_ros.observers.base import SampleRejected, resolve
+from fto_ros.core.params import resolve
+from fto_ros.observers.base import SampleRejected
 from fto_ros.observers.global_norm import (GlobalNormObserver, companion_expm, companion_step,
                                            gains_numeric)
 from fto_ros.observers.high_gain import HighGainObserver

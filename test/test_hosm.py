@@ -19,7 +19,8 @@ from fto_ros.core.linear import place_observer_poles
 from fto_ros.core.structure import StructureError, analyse, invariant_zeros, relative_degree
 from fto_ros.models import fld_examples as fx
 from fto_ros.observers import REGISTRY
-from fto_ros.observers.base import ConfigError, SampleRejected, resolve
+from fto_ros.core.params import resolve
+from fto_ros.observers.base import ConfigError, SampleRejected
 from fto_ros.observers.hosm import HosmObserver
 
 

@@ -35,9 +35,11 @@ FORBIDDEN = {
               "fto_ros.replay", "fto_ros.bag", "fto_ros.cli", "fto_ros.models"},
     "runner": {"rclpy", "rosbags", "mcap", "fto_ros.nodes", "fto_ros.replay", "fto_ros.bag", "fto_ros.cli"},
     "bag": {"rclpy", "fto_ros.nodes", "fto_ros.replay", "fto_ros.cli"},
-    "replay": {"rclpy", "fto_ros.nodes"},
+    # the command-line tools (cli/) sit on top: what replay/ and sweep/ share with them
+    # (argument types, one-line errors) is core/command_line.py
+    "replay": {"rclpy", "fto_ros.nodes", "fto_ros.cli"},
     # sweeps replay offline, in worker processes or on a cluster: no DDS anywhere
-    "sweep": {"rclpy", "fto_ros.nodes"},
+    "sweep": {"rclpy", "fto_ros.nodes", "fto_ros.cli"},
 }
 
 
@@ -69,6 +71,28 @@ def test_layers_import_only_downwards(layer):
             if any(name == f or name.startswith(f + ".") for f in FORBIDDEN[layer]):
                 bad.append(f"{path.relative_to(ROOT)} imports {name}")
     assert not bad, "\n".join(bad)
+
+
+def test_every_exception_of_the_package_is_an_fto_ros_error():
+    """One error base: every exception class defined in fto_ros/ derives from FtoRosError
+    (a caller catches one type); warnings are notes, not errors."""
+    import importlib
+    import inspect
+    from fto_ros.core.errors import FtoRosError
+    found = []
+    for path in sorted(PKG.rglob("*.py")):
+        tree = ast.parse(path.read_text())
+        classes = [n.name for n in tree.body if isinstance(n, ast.ClassDef)]
+        if not classes or "rclpy" in str(imports_of(path)):
+            continue
+        mod = importlib.import_module(".".join(path.relative_to(ROOT).with_suffix("").parts))
+        for name in classes:
+            cls = getattr(mod, name)
+            if inspect.isclass(cls) and issubclass(cls, BaseException) \
+                    and not issubclass(cls, Warning):
+                found.append(cls)
+                assert issubclass(cls, FtoRosError), f"{path.name}: {name} is not an FtoRosError"
+    assert len(found) >= 8, [c.__name__ for c in found]
 
 
 def test_lower_layers_load_without_rclpy():

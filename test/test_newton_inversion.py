@@ -16,7 +16,8 @@ import pytest
 from fto_ros.core.errors import ConfigError
 from fto_ros.models import possieri_example as pe
 from fto_ros.observers import REGISTRY
-from fto_ros.observers.base import SampleRejected, resolve
+from fto_ros.core.params import resolve
+from fto_ros.observers.base import SampleRejected
 from fto_ros.observers.newton_inversion import NewtonInversionObserver as NI
 from fto_ros.observers.newton_inversion import implicit_flow
 from fto_ros.runner import Runner

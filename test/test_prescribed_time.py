@@ -50,7 +50,8 @@ from fto_ros.models.canonical_form import (DOUBLE_INTEGRATOR, THIRD_ORDER, Canon
                                            example1_input)
 from fto_ros.models.simulate import simulate, uniform_grid
 from fto_ros.observers import REGISTRY
-from fto_ros.observers.base import SampleRejected, resolve
+from fto_ros.core.params import resolve
+from fto_ros.observers.base import SampleRejected
 from fto_ros.observers.prescribed_time import (PrescribedTimeObserver, c_matrix, gain_coefficients,
                                                p_bar, p_bar_closed_form)
 from fto_ros.runner import Runner, load_params_file

@@ -9,7 +9,7 @@ import pytest
 
 from fto_ros.core.errors import ConfigError
 from fto_ros.observers import REGISTRY, observer_class
-from fto_ros.observers.base import Param, matrix, resolve
+from fto_ros.core.params import Param, matrix, resolve
 from fto_ros.runner import Runner, SETTINGS, load_params_file
 from fto_ros.runner import settings as S
 

@@ -17,7 +17,8 @@ import pytest
 from fto_ros.core.errors import ConfigError
 from fto_ros.models import dc_motor
 from fto_ros.models.simulate import simulate
-from fto_ros.observers.base import SampleRejected, resolve
+from fto_ros.core.params import resolve
+from fto_ros.observers.base import SampleRejected
 from fto_ros.observers.single_delay import ContinuousSingleDelay, SingleDelayObserver, design
 from fto_ros.runner import Runner, load_params_file
 

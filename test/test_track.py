@@ -190,7 +190,8 @@ def test_live_node_runs_the_composition(tmp_path):
 
 # -- the compiled composition ---------------------------------------------------------------
 from fto_ros.observers import kernel as K  # noqa: E402
-from fto_ros.observers.base import SampleRejected, resolve  # noqa: E402
+from fto_ros.core.params import resolve
+from fto_ros.observers.base import SampleRejected  # noqa: E402
 from fto_ros.observers.luenberger import LuenbergerObserver  # noqa: E402
 from fto_ros.observers.single_delay import SingleDelayObserver  # noqa: E402
 from fto_ros.observers.track import (LegacyTrackObserver, TrackKernelObserver,  # noqa: E402

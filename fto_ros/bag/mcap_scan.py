@@ -29,6 +29,8 @@ import numpy as np
 import yaml
 from numpy.lib.stride_tricks import as_strided
 
+from ..core.errors import FtoRosError
+
 _MAGIC = b"\x89MCAP0\r\n"
 _REC = struct.Struct("<BQ")
 _MSG = struct.Struct("<HIQ")          # channel id, sequence, log time (publish time follows)
@@ -44,7 +46,7 @@ _HDR_RANGE = np.arange(_HDR)
 FAST_PATH_MAX_BYTES = 1 << 30
 
 
-class NotFast(Exception):
+class NotFast(FtoRosError):
     """The fast MCAP path cannot read this bag; use BagReader."""
 
 

@@ -17,7 +17,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from .args import guarded, one_line
+from ..core.command_line import guarded, one_line
 
 PROG = "fto-design"
 

@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 
 from ..observers import REGISTRY
-from ..observers.base import Param
+from ..core.params import Param
 from ..plant.block import PLANT_PARAMS
 from ..runner.settings import SETTINGS
 from .simulate_plant import SIM_PARAMS

@@ -284,7 +284,7 @@ def markdown(pairs: list[Pair], notes: list[str], out: Path) -> str:
 
 # ------------------------------------------------------------------------- main
 def build_parser() -> argparse.ArgumentParser:
-    from .args import positive_int
+    from ..core.command_line import positive_int
     p = argparse.ArgumentParser(
         prog=PROG,
         description="Replay the DC-motor bags (and the other example systems' bags) through every "
@@ -307,13 +307,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    from .args import guarded
+    from ..core.command_line import guarded
     return guarded(PROG, _main, build_parser().parse_args(argv))
 
 
 def _said(p: Pair, progress=None) -> None:
     """The line on stderr when a pair is done (above the progress bar)."""
-    from .progress import say
+    from ..core.progress import say
     if p.error:
         say(progress, f"{PROG}: error: {p.bag.name} with {p.config.name}: {p.error}")
     else:
@@ -323,7 +323,7 @@ def _said(p: Pair, progress=None) -> None:
 
 def _main(args) -> int:
     from ..sweep.engine import Engine, Lost, prestart
-    from .progress import bar
+    from ..core.progress import bar
     prestart(args.workers)                   # the workers' imports start now, beside ours
     from ..sweep.tasks import Run, bag_size, execute
 

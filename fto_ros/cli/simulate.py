@@ -58,7 +58,7 @@ from .. import __version__
 from ..bag import BagError, BagWriter
 from ..core.output_dir import OutputError, OutputExists, check_output
 from ..models import MODELS
-from .args import non_negative_float, positive_float
+from ..core.command_line import non_negative_float, positive_float
 from ..models.simulate import quantize_ns, simulate, sparse_instants, to_ns, uniform_grid
 
 PROG = "fto-simulate"

@@ -41,7 +41,7 @@ from ..core.errors import ConfigError
 from ..models.arm import ArmSettings, Contact, simulate_arm
 from ..models.simulate import to_ns
 from ..rigid.model import load_model
-from .args import guarded, non_negative_float, one_line, positive_float
+from ..core.command_line import guarded, non_negative_float, one_line, positive_float
 
 PROG = "fto-simulate"
 METADATA_KEY = "fto_ros.simulation"

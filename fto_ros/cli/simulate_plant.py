@@ -21,7 +21,7 @@ import sympy
 from ..core.errors import ConfigError
 from ..core.expressions import compile_exprs, parse
 from ..models.unknown_input import UnknownInputModelSpec
-from ..observers.base import Param, resolve
+from ..core.params import Param, resolve
 from ..plant import resolve_plant
 from ..plant.block import compiled
 from ..runner.params_file import load_params_files

@@ -1,5 +1,6 @@
-"""The one exception type for unusable configuration, shared by every layer, and the
-helper that keeps any value quoted in a message short."""
+"""The package's exception base (every error fto_ros raises is an ``FtoRosError``: a caller
+catches one type), the one exception type for unusable configuration, shared by every
+layer, and the helper that keeps any value quoted in a message short."""
 import reprlib
 
 #: longest message a ConfigError carries (characters); longer ones are cut with a note
@@ -22,7 +23,15 @@ def short(value) -> str:
     return _repr.repr(value)
 
 
-class ConfigError(ValueError):
+class FtoRosError(Exception):
+    """The base of every exception this package raises on purpose: unusable parameters
+    (ConfigError), an unusable bag (BagError), a replay or a sweep that cannot go on
+    (ReplayError, EngineError), an output folder it must not write (OutputError), a plant
+    whose structure it cannot use (StructureError), a sample an observer cannot take
+    (SampleRejected)."""
+
+
+class ConfigError(FtoRosError, ValueError):
     """A parameter value is unusable.  The message names the parameter (one line, bounded)."""
 
     def __init__(self, parameter: str, problem: str):

@@ -1,5 +1,4 @@
-"""Exact sampled-data steps of ``x' = A x + B w(t)`` inside a kernel (compiled twin of
-``core.discretize.ExactStepper``).
+"""Exact sampled-data steps of ``x' = A x + B w(t)`` inside a kernel.
 
 Between two samples w is linear from w0 to w1 (FOH; w1 = w0 holds it): one matrix
 exponential of the augmented matrix (Van Loan) gives ``[Phi | G0 | G1]`` with
@@ -16,13 +15,10 @@ import math
 
 import numpy as np
 
+from .discretize import COMPOSE_AFTER, STEP_QUANTUM
 from .jit import jit
 from .linalg import expm_exact, matvec
 from .step_cache import cache_claim, cache_find, cache_misses
-
-#: model time runs on this grid (s); see core/discretize.py
-STEP_QUANTUM = 1e-6
-COMPOSE_AFTER = 64
 
 
 @jit

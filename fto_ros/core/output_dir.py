@@ -35,6 +35,8 @@ from typing import Iterable
 
 import yaml
 
+from .errors import FtoRosError
+
 #: the marker file every output folder gets when it is created
 MARKER = ".fto_ros_output"
 
@@ -56,11 +58,11 @@ _MAX_MARKER_BYTES = 4096
 _MAX_METADATA_BYTES = 1 << 20
 
 
-class OutputError(ValueError):
+class OutputError(FtoRosError, ValueError):
     """An output path is refused (a bad argument: exit code 2)."""
 
 
-class OutputExists(FileExistsError):
+class OutputExists(FtoRosError, FileExistsError):
     """The output exists and replacing it was not asked for."""
 
 

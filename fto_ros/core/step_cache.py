@@ -1,6 +1,6 @@
 """A bounded cache of per-step-size matrices inside a kernel's work array.
 
-The compiled twin of ``core.discretize.StepCache``: a table of ``slots`` entries of
+A table of ``slots`` entries of
 ``size`` floats each, keyed by the step in integer nanoseconds, filled in order and
 replaced first-in first-out once full (so a stream with ever new step sizes never grows
 memory, and what is cached depends only on the sequence of steps, never on timing).

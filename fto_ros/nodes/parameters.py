@@ -18,7 +18,7 @@ from rclpy.parameter import Parameter
 
 from ..core.errors import ConfigError
 from ..observers import REGISTRY, observer_class
-from ..observers.base import Param
+from ..core.params import Param
 from ..plant.block import PLANT_PARAMS, PREFIX as PLANT_PREFIX
 from ..runner.settings import ROS_BUILTIN, SETTINGS
 

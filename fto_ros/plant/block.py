@@ -26,7 +26,7 @@ from sympy.printing.str import StrPrinter
 
 from ..core.errors import ConfigError
 from ..core.named_model import NamedModel, parse_model
-from ..observers.base import Param, resolve
+from ..core.params import Param, resolve
 
 PREFIX = "plant."
 

@@ -18,7 +18,6 @@ import sympy
 from ..core.errors import ConfigError
 from ..core.linear import observability_rank
 from ..core.structure import StructureError, invariant_zeros, relative_degree
-from ..observers import REGISTRY
 from .block import Plant, to_text
 from .forms import LinearForm, canonical_form, chain_form, linear_form, output_matrix
 
@@ -52,16 +51,6 @@ class Derivation:
 
 def _flat(M: np.ndarray) -> list[float]:
     return [float(v) for v in np.asarray(M, dtype=float).ravel()]
-
-
-def _tuning(type_name: str, section: Mapping[str, Any], name: str, why: str):
-    """A tuning value the derivation needs, typed by the observer's schema."""
-    param = next(p for p in REGISTRY[type_name].PARAMS if p.name == name)
-    full = f"{type_name}.{name}"
-    raw = section.get(name, param.default)
-    if raw is None:
-        raise ConfigError(full, f"missing: {why}")
-    return param.coerce(raw, full)
 
 
 def _interval_bound(e: sympy.Expr) -> float | None:

@@ -16,7 +16,7 @@ import argparse
 import os
 import sys
 
-from ..cli.args import fraction, non_negative_float, one_line, positive_float
+from ..core.command_line import fraction, non_negative_float, one_line, positive_float
 
 PROG = "fto-replay"
 

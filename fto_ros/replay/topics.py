@@ -2,10 +2,12 @@
 resolution, and the error a replay stops with."""
 from __future__ import annotations
 
+from ..core.errors import FtoRosError
+
 DEFAULT_NODE_NAME = "observer_node"
 
 
-class ReplayError(Exception):
+class ReplayError(FtoRosError):
     """The replay cannot run (e.g. the bag lacks a topic the configuration needs)."""
 
 

@@ -20,6 +20,7 @@ import math
 
 import numpy as np
 
+from ..core.errors import FtoRosError
 from . import steps
 from .model import RigidBodyModel
 
@@ -37,7 +38,7 @@ def run_over(est, t, q, tau) -> tuple[np.ndarray, np.ndarray]:
     return E, V
 
 
-class SampleRejected(ValueError):
+class SampleRejected(FtoRosError, ValueError):
     """A sample the estimator cannot use; its state is unchanged."""
 
 

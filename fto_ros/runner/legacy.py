@@ -31,7 +31,8 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from ..core.errors import ConfigError
-from ..observers.base import Observer, SampleRejected, check_vector
+from ..core.params import check_vector
+from ..observers.base import Observer, SampleRejected
 from . import settings as S
 from .build import changed_names, design_guard
 from .legacy_gate import OutlierGate, channel_limits, exceeds

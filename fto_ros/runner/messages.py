@@ -14,12 +14,6 @@ def stamp_seconds(stamp) -> float:
     return stamp.sec + stamp.nanosec * 1e-9
 
 
-def seconds_to_stamp_parts(t: float) -> tuple[int, int]:
-    """seconds -> (sec, nanosec) with 0 <= nanosec < 1e9 (rounded to the nanosecond)."""
-    ns = round(t * 1e9)
-    return ns // 1_000_000_000, ns % 1_000_000_000
-
-
 def _pick(names: list[str], values, joints: Sequence[str], field: str) -> list[float] | str:
     if len(values) != len(names):
         return f"joint_states_{field}_missing"

@@ -35,7 +35,7 @@ from typing import Any
 import yaml
 
 from ..core.errors import ConfigError, short
-from ..observers.base import MAX_ARRAY
+from ..core.params import MAX_ARRAY
 
 #: deepest nesting of mappings and lists accepted
 MAX_DEPTH = 32

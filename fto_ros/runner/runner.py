@@ -35,7 +35,8 @@ import numpy as np
 
 from ..core.errors import ConfigError
 from ..core.reasons import CODE, REJECTIONS, RESTART_CODE, RESTARTS, REQUESTED
-from ..observers.base import KernelObserver, Observer, check_vector
+from ..core.params import check_vector
+from ..observers.base import KernelObserver, Observer
 from . import gate as G
 from . import loop as L
 from . import joints as JX

@@ -10,7 +10,7 @@ from typing import Any, Mapping
 
 from ..core.errors import ConfigError
 from ..observers import REGISTRY, observer_class
-from ..observers.base import Param, check_size, resolve
+from ..core.params import Param, check_size, resolve
 from ..observers.track import TrackObserver
 from ..plant import expand as expand_plant
 from .params_file import flatten, load_params_file, load_params_files  # noqa: F401  (re-exported)

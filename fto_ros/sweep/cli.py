@@ -47,7 +47,7 @@ def _scheduler(text: str) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from ..cli.args import non_negative_float, positive_float, positive_int
+    from ..core.command_line import non_negative_float, positive_float, positive_int
     p = _Parser(
         prog=PROG,
         description="Replay every combination of the --set values on every bag (the replay "
@@ -103,18 +103,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _fail(code: int, message: str) -> int:
-    from ..cli.args import one_line
+    from ..core.command_line import one_line
     print(f"{PROG}: error: {one_line(message)}", file=sys.stderr)
     return code
 
 
 def main(argv=None) -> int:
-    from ..cli.args import guarded
+    from ..core.command_line import guarded
     return guarded(PROG, _main, build_parser().parse_args(argv))
 
 
 def _main(args) -> int:
-    from ..cli.progress import bar
+    from ..core.progress import bar
     from .engine import prestart
     prestart(args.workers, args.scheduler)        # the workers' imports start now, beside ours
     progress = bar(0, "runs", enabled=not args.quiet)
@@ -126,7 +126,7 @@ def _main(args) -> int:
 
 
 def _sweep(args, progress) -> int:
-    from ..cli.progress import say
+    from ..core.progress import say
     from ..core.errors import ConfigError
     from ..core.output_dir import OutputError, OutputExists, check_output, create_output
     from ..runner.params_file import load_params_files

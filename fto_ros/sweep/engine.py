@@ -34,7 +34,8 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
-from ..cli.args import one_line
+from ..core.command_line import one_line
+from ..core.errors import FtoRosError
 
 #: seconds to wait for the scheduler to answer, and for a cluster to have a worker
 CONNECT_TIMEOUT_S = 30.0
@@ -42,7 +43,7 @@ CONNECT_TIMEOUT_S = 30.0
 PRELOAD = ["fto_ros.replay.replay", "fto_ros.sweep.tasks"]
 
 
-class EngineError(Exception):
+class EngineError(FtoRosError):
     """The engine cannot run anything (scheduler unreachable, no worker, workers without
     fto_ros, files the workers cannot see).  One line."""
 

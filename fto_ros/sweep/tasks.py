@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..cli.args import one_line
+from ..core.command_line import one_line
 from .engine import where
 
 #: outcome kinds of a failed run: a parameter refused, a bad bag, anything else
