@@ -1,10 +1,17 @@
-"""Update cost per sample of each observer, in-process (no ROS), on the DC-motor bags' data.
+"""Cost per sample of every committed DC-motor config, in-process (no ROS).
 
-Prints a markdown table: median and p99 of one ``Observer.update`` call and of one
-``Runner.process`` call (validation + update + outputs), in microseconds, measured
-in one run on the same sample stream, plus each figure as a ratio to the plain
-numpy baseline (one 3x3 matrix-vector product) timed in the same run, so the
-table carries over between machines better than absolute times.
+Prints a markdown table, measured in one run on the same 1 kHz sample stream, in
+microseconds and as ratios to the plain numpy baseline (one 3x3 matrix-vector product)
+timed in the same run, so the table carries over between machines better than
+absolute times:
+
+- ``update_checked``: one observer update from Python (the compiled kernel's entry:
+  the input and measurement checks, the kernel, commit-if-finite);
+- ``Runner.process``: one ``set_input`` + ``process`` pair (validation, timeline, gate,
+  the kernel, the output arrays and the convergence figures) from Python;
+- ``process_block``: the same stream as one block of input/measurement events through
+  ``Runner.process_block`` (the compiled loop the replay and the node's batched intake
+  use), per measurement.
 
     python benchmarks/bench_update.py [--samples N] [--repeats R]
 """
@@ -19,12 +26,14 @@ import numpy as np
 from fto_ros.models import dc_motor
 from fto_ros.models.simulate import simulate
 from fto_ros.runner import Runner
+from fto_ros.runner import loop as L
 from fto_ros.runner.params_file import load_params_files
 from fto_ros.runner.plant_files import params_files
 
 ROOT = Path(__file__).resolve().parent.parent
-CONFIGS = ["dc_motor_single_delay.yaml", "dc_motor_luenberger.yaml", "dc_motor_hosm.yaml",
-           "dc_motor_newton.yaml"]
+#: every committed DC-motor config but the plant file itself
+CONFIGS = sorted(p.name for p in (ROOT / "config").glob("dc_motor_*.yaml")
+                 if p.name != "dc_motor_plant.yaml")
 
 
 def stream(n: int, h: float = 1e-3):
@@ -49,38 +58,49 @@ def matvec_baseline(samples: int, repeats: int) -> float:
     return min(np.median(time_calls(lambda i: M @ v, samples)) for _ in range(repeats))
 
 
-def measure(flat: dict, t, y, u, repeats: int) -> tuple[float, float, float, float]:
-    """(update p50, p99, Runner.process p50, p99) in us: the best of ``repeats`` runs
-    over the sample stream (t, y, u), each on a fresh Runner."""
+def measure(flat: dict, t, y, u, repeats: int) -> tuple[float, float, float, float, float]:
+    """(update_checked p50, p99, Runner.process p50, p99, process_block per sample) in us:
+    the best of ``repeats`` runs over the sample stream (t, y, u), each on a fresh Runner."""
     n = len(t)
     best_obs = best_run = None
+    best_block = float("inf")
+    kind = np.tile(np.array([L.INPUT, L.MEASUREMENT], np.int8), n)
+    tt = np.repeat(t, 2)
+    vals = np.zeros((2 * n, max(y.shape[1], u.shape[1])))
+    vals[0::2, :u.shape[1]] = u
+    vals[1::2, :y.shape[1]] = y
     for _ in range(repeats):
         obs = Runner(flat).observer
         obs.reset(t[0])
-        obs.update(t[0], y[0], u[0])
-        upd = time_calls(lambda i: obs.update(t[i + 1], y[i + 1], u[i + 1]), n - 1)
+        obs.update_checked(t[0], y[0], u[0])
+        upd = time_calls(lambda i: obs.update_checked(t[i + 1], y[i + 1], u[i + 1]), n - 1)
         r = Runner(flat)
 
         def proc(i):
             r.set_input(t[i], u[i])
             r.process(t[i], y[i])
         run = time_calls(proc, n)
+        r = Runner(flat)
+        t0 = time.perf_counter_ns()
+        r.process_block(kind, tt, vals)
+        best_block = min(best_block, (time.perf_counter_ns() - t0) / 1e3 / n)
         if best_obs is None or np.median(upd) < np.median(best_obs):
             best_obs = upd
         if best_run is None or np.median(run) < np.median(best_run):
             best_run = run
     return (np.median(best_obs), np.percentile(best_obs, 99),
-            np.median(best_run), np.percentile(best_run, 99))
+            np.median(best_run), np.percentile(best_run, 99), best_block)
 
 
 def print_table(first_column: str, rows, base: float) -> None:
-    """The markdown table: rows of (label, update p50, p99, process p50, p99)."""
+    """The markdown table: rows of (label, update p50, p99, process p50, p99, block)."""
     print(f"numpy baseline (3x3 matvec): {base:.2f} us\n")
-    print(f"| {first_column} | update p50 (us) | update p99 (us) | runner.process p50 (us) | "
-          "runner.process p99 (us) | update p50 / matvec |")
-    print("|---|---|---|---|---|---|")
-    for name, p50, p99, r50, r99 in rows:
-        print(f"| {name} | {p50:.1f} | {p99:.1f} | {r50:.1f} | {r99:.1f} | {p50 / base:.0f}x |")
+    print(f"| {first_column} | update_checked p50 / p99 (us) | Runner.process p50 / p99 (us) | "
+          "process_block per sample (us) | update / matvec | process / matvec | block / matvec |")
+    print("|---|---|---|---|---|---|---|")
+    for name, p50, p99, r50, r99, blk in rows:
+        print(f"| {name} | {p50:.1f} / {p99:.1f} | {r50:.1f} / {r99:.1f} | {blk:.2f} | "
+              f"{p50 / base:.1f}x | {r50 / base:.1f}x | {blk / base:.1f}x |")
 
 
 def main(argv=None) -> int:
@@ -93,8 +113,8 @@ def main(argv=None) -> int:
     rows = []
     for cfg in CONFIGS:
         flat = load_params_files(params_files(ROOT / "config" / cfg))
-        rows.append((flat["observer.type"], *measure(flat, t, y, u, args.repeats)))
-    print_table("observer", rows, base)
+        rows.append((cfg[:-5], *measure(flat, t, y, u, args.repeats)))
+    print_table("config", rows, base)
     return 0
 
 
