@@ -119,7 +119,7 @@ class WindowEstimator(_Estimator):
         return self.window
 
     def _restart(self):
-        self._red = None
+        self._red = self._mass = None
         self._win = steps.window_init(self._win_c)
 
     def _update(self, h, q, tau):
@@ -133,17 +133,18 @@ class WindowEstimator(_Estimator):
             _, Md_c, phi_c = self._phi(*central)
         win = steps.window_step(self._win, self._win_c, self.h if h is None else h, q, tau,
                                 M, Md, phi, Md_c, phi_c)
-        self._red, self._win, self.velocity = red, win, v
+        self._red, self._win, self.velocity, self._mass = red, win, v, M
         out = steps.window_output(win, self._win_c)
         self.tau_ext = None if out is None else out.copy()
 
-    def noise_gain(self, q) -> np.ndarray:
+    def noise_gain(self, q=None) -> np.ndarray:
         """Per joint, the standard deviation of the estimate per unit (rad) of white encoder
-        noise at the configuration q: ||a|| ||M_i,:|| (the kernel's second-derivative weights,
-        docs/external_torque.md)."""
+        noise at the configuration q (None: the last sample's): ||a|| ||M_i,:|| (the kernel's
+        second-derivative weights, docs/external_torque.md)."""
         n, W = self.n, self.samples
         a = self._win_c[4 + n:4 + n + W + 1]
-        return np.linalg.norm(a) * np.linalg.norm(self.model.mass_matrix(q), axis=1)
+        M = self._mass if q is None else self.model.mass_matrix(q)
+        return np.linalg.norm(a) * np.linalg.norm(M, axis=1)
 
     def step_response(self, elapsed: float) -> float:
         """Fraction of a step of tau_ext shown ``elapsed`` s after it: K(elapsed / T)."""
