@@ -52,7 +52,7 @@ class ExternalTorqueNode(LifecycleNode):
         kwargs.setdefault("automatically_declare_parameters_from_overrides", False)
         super().__init__(node_name, **kwargs)
         self.loop: TorqueLoop | None = None
-        self._entities: list = []
+        self._io: list = []
         self._failure: ConfigError | None = None
         raw = self._parameter_overrides.get("autostart")
         self._autostart = raw is None or (raw.type_ == Parameter.Type.BOOL and bool(raw.value))
@@ -62,7 +62,7 @@ class ExternalTorqueNode(LifecycleNode):
             self.trigger_activate()
 
     # -- parameters -----------------------------------------------------------------------
-    def _parameters(self) -> dict:
+    def _declared_values(self) -> dict:
         """Declare every setting with its descriptor; the typed values plus every override
         nobody declared (refused by name in ``build``)."""
         overrides = dict(self._parameter_overrides)
@@ -82,39 +82,44 @@ class ExternalTorqueNode(LifecycleNode):
     # -- lifecycle --------------------------------------------------------------------------
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         try:
-            self.loop = TorqueLoop(build(self._parameters()))
+            self.loop = TorqueLoop(build(self._declared_values()))
         except ConfigError as exc:
             self.loop, self._failure = None, exc
+        except Exception as exc:  # noqa: BLE001  a model that cannot be built: unconfigured
+            self.loop, self._failure = None, ConfigError(
+                "plant.urdf", f"cannot build the model: {type(exc).__name__}: "
+                + " ".join(str(exc).split())[:300])
+        if self.loop is None:
             if not self._autostart:       # at start-up the entry point prints it, once
-                self.get_logger().error(f"fto_ros: bad parameter: {exc}")
+                self.get_logger().error(f"fto_ros: bad parameter: {self._failure}")
             return TransitionCallbackReturn.FAILURE
         return TransitionCallbackReturn.SUCCESS
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         s = self.loop.setup.flat
-        self._pub = self.create_publisher(JointState, s["topics.external_torque"], OUT_QOS)
+        self._pub_torque = self.create_publisher(JointState, s["topics.external_torque"], OUT_QOS)
         self._pub_collision = self.create_publisher(JointState, "~/collision", OUT_QOS)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", OUT_QOS)
-        self._entities = [self._pub, self._pub_collision, self._pub_diag]
+        self._io = [self._pub_torque, self._pub_collision, self._pub_diag]
         self._pub_momentum = None
         if self.loop.gmo is not None:
             self._pub_momentum = self.create_publisher(JointState, "~/external_torque_momentum",
                                                        OUT_QOS)
-            self._entities.append(self._pub_momentum)
-        self._entities.append(self.create_subscription(JointState, s["topics.joint_states"],
+            self._io.append(self._pub_momentum)
+        self._io.append(self.create_subscription(JointState, s["topics.joint_states"],
                                                        self._on_joint_states, IN_QOS))
-        self._timer = self.create_timer(s["diagnostics.period"], self._publish_diagnostics)
+        self._diag_timer = self.create_timer(s["diagnostics.period"], self._publish_diagnostics)
         return super().on_activate(state)
 
     def _close(self) -> None:
-        for ent in self._entities:
+        for ent in self._io:
             if hasattr(ent, "topic_name") and hasattr(ent, "publish"):
                 self.destroy_publisher(ent)
             else:
                 self.destroy_subscription(ent)
-        if self._entities:
-            self.destroy_timer(self._timer)
-        self._entities = []
+        if self._io:
+            self.destroy_timer(self._diag_timer)
+        self._io = []
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._close()
@@ -144,7 +149,7 @@ class ExternalTorqueNode(LifecycleNode):
             return
         joints = self.loop.joints
         if res.tau_ext is not None:
-            self._pub.publish(self._joint_state(msg.header, joints, res.tau_ext.tolist()))
+            self._pub_torque.publish(self._joint_state(msg.header, joints, res.tau_ext.tolist()))
         if res.momentum is not None and self._pub_momentum is not None:
             self._pub_momentum.publish(self._joint_state(msg.header, joints,
                                                          res.momentum.tolist()))
