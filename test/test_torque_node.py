@@ -159,6 +159,23 @@ def test_offline_detects_the_contact_within_10_ms(arm_run):
     assert loop.rejected == {"measurement_non_finite": 1, "joint_states_joint_missing": 1}
 
 
+def test_compiled_steps_equal_the_numpy_steps(arm_run):
+    """The window estimator through steps_compiled (numba) and through steps (numpy) on 1.5 s
+    of the contact bag around the contact: the same estimates up to rounding."""
+    from fto_ros.core import jit
+    from fto_ros.rigid.external_torque import WindowEstimator, run_over
+    if not jit.ENABLED:
+        pytest.skip("numba is off (FTO_ROS_NUMBA=0): the compiled steps are the numpy ones")
+    model = build(PARAMS).model
+    sl = slice(int(np.searchsorted(arm_run.t, 5.0)), int(np.searchsorted(arm_run.t, 6.5)))
+    args = (arm_run.t[sl], arm_run.q_measured[sl], arm_run.tau[sl])
+    Ec, Vc = run_over(WindowEstimator(model, compiled=True), *args)
+    En, Vn = run_over(WindowEstimator(model, compiled=False), *args)
+    assert np.array_equal(np.isnan(Ec), np.isnan(En)) and np.isfinite(Ec[-1]).all()
+    assert np.nanmax(np.abs(Ec - En)) <= 1e-9 and np.max(np.abs(Vc - Vn)) <= 1e-10
+    assert np.nanmax(np.abs(En)) > 10                       # the contact is in the slice
+
+
 # ---------------------------------------------------------------------------------- live
 rclpy = pytest.importorskip("rclpy")
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402

@@ -20,7 +20,9 @@ import math
 
 import numpy as np
 
+from ..core import jit
 from . import steps
+from . import steps_compiled as compiled
 from .model import RigidBodyModel
 
 
@@ -103,8 +105,10 @@ class WindowEstimator(_Estimator):
 
     def __init__(self, model: RigidBodyModel, sample_period: float = 1e-3, window: float = 0.06,
                  velocity_order: int = 2, velocity_L: float = 300.0, velocity_rho: float = 2.0,
-                 central: int = steps.CENTRAL):
+                 central: int = steps.CENTRAL, compiled: bool | None = None):
         W = round(window / sample_period)
+        #: the steps of :mod:`.steps_compiled` (default: when numba is on), else the numpy ones
+        self.compiled = jit.ENABLED if compiled is None else bool(compiled)
         if not (8 <= W <= 2000 and abs(W * sample_period - window) < 1e-9 + 1e-6 * window):
             raise ValueError(f"window: must be 8..2000 sample periods, got {window!r} s")
         self.samples = W
@@ -123,6 +127,8 @@ class WindowEstimator(_Estimator):
         self._win = steps.window_init(self._win_c)
 
     def _update(self, h, q, tau):
+        if self.compiled:
+            return self._update_compiled(h, q, tau)
         red = steps.red_init(self._red_c, q) if h is None else \
             steps.red_step(self._red, self._red_c, h, q)
         v = steps.red_output(red, self._red_c, self.n)[:, 1].copy()
@@ -133,6 +139,26 @@ class WindowEstimator(_Estimator):
             _, Md_c, phi_c = self._phi(*central)
         win = steps.window_step(self._win, self._win_c, self.h if h is None else h, q, tau,
                                 M, Md, phi, Md_c, phi_c)
+        self._red, self._win, self.velocity, self._mass = red, win, v, M
+        out = steps.window_output(win, self._win_c)
+        self.tau_ext = None if out is None else out.copy()
+
+    def _update_compiled(self, h, q, tau):
+        """The same step through :mod:`.steps_compiled` (the sample is validated)."""
+        red = steps.red_init(self._red_c, q) if h is None else \
+            compiled.red_step(self._red, self._red_c, h, q)
+        if not np.all(np.isfinite(red)):
+            raise ValueError("differentiator: the step gives a non-finite estimate")
+        v = steps.red_output(red, self._red_c, self.n)[:, 1].copy()
+        M, Md, phi = self._phi(q, v)
+        has_c = self._win[0] >= 2 * self._win_c[3]
+        Md_c, phi_c = Md, phi
+        if has_c:
+            _, Md_c, phi_c = self._phi(*compiled.window_central(self._win, self._win_c, q))
+        win = np.empty_like(self._win)
+        if not compiled.window_step(self._win, self._win_c, q, tau, M, Md, phi, Md_c, phi_c,
+                                    has_c, win):
+            raise ValueError("window: a model term or the estimate is not finite")
         self._red, self._win, self.velocity, self._mass = red, win, v, M
         out = steps.window_output(win, self._win_c)
         self.tau_ext = None if out is None else out.copy()

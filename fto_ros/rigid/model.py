@@ -233,6 +233,8 @@ class RigidBodyModel:
         self.friction_width = w
         self.effort_limit = np.array(model.effortLimit[self._iv])
         self._perm = np.ix_(self._iv, self._iv)
+        self._identity = bool(model.nv == n and np.array_equal(self._iv, np.arange(n)))
+        self._lower = np.tril_indices(model.nv, -1)
 
     # -- coordinates ------------------------------------------------------------------------
     @staticmethod
@@ -317,10 +319,18 @@ class RigidBodyModel:
         return np.concatenate([w, np.zeros(3)]) if force_only else w
 
     def momentum_terms(self, q, v) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(M, Mdot, C^T v, g) at (q, v): what the estimators' steps take from the model."""
-        M = self.mass_matrix(q)
-        C = self.coriolis_matrix(q, v)
-        return M, C + C.T, C.T @ np.asarray(v, dtype=float), self.gravity(q)
+        """(M, Mdot, C^T v, g) at (q, v): what the estimators' steps take from the model
+        (the values of mass_matrix, coriolis_matrix and gravity, with one conversion of q and
+        v: this is called twice per sample)."""
+        pin, model, data = self._pin, self.model, self.data
+        qp, v = self._q(q), np.asarray(v, dtype=float)
+        M = np.array(pin.crba(model, data, qp))
+        M[self._lower] = M.T[self._lower]                 # CRBA fills the upper triangle
+        C = np.array(pin.computeCoriolisMatrix(model, data, qp, self._v(v)))
+        g = np.array(pin.computeGeneralizedGravity(model, data, qp))
+        if not self._identity:
+            M, C, g = M[self._perm], C[self._perm], g[self._iv]
+        return M, C + C.T, C.T @ v, g
 
 
 def load_model(joints: Sequence[str] | None, *, urdf: str | os.PathLike | None = None,
