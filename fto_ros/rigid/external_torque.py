@@ -89,11 +89,12 @@ class _Estimator:
         self._t = float(t)
         return self.tau_ext
 
-    def _phi(self, q, v):
-        """(M, Mdot, C^T v - g - Coulomb friction) at (q, v)."""
-        M, Md, CTv, g = self.model.momentum_terms(q, v)
+    def _phi(self, q, v, mass: bool = True):
+        """(M, Mdot, C^T v - g - Coulomb friction) at (q, v); without M if not ``mass``."""
+        M, Md, CTv, g = self.model.momentum_terms(q, v, mass)
         m = self.model
-        return M, Md, CTv - g - m.coulomb * np.tanh(v / m.friction_width)
+        phi = CTv - g - m.coulomb * np.tanh(v / m.friction_width)
+        return (M, Md, phi) if mass else (Md, phi)
 
 
 class WindowEstimator(_Estimator):
@@ -115,6 +116,7 @@ class WindowEstimator(_Estimator):
         self.window = W * sample_period
         self._red_c = steps.red_consts(velocity_order, velocity_L, velocity_rho)
         self._win_c = steps.window_consts(model.n, W, sample_period, model.viscous, central)
+        self._a_norm = float(np.linalg.norm(self._win_c[4 + model.n:4 + model.n + W + 1]))
         super().__init__(model, sample_period)
 
     @property
@@ -154,7 +156,8 @@ class WindowEstimator(_Estimator):
         has_c = self._win[0] >= 2 * self._win_c[3]
         Md_c, phi_c = Md, phi
         if has_c:
-            _, Md_c, phi_c = self._phi(*compiled.window_central(self._win, self._win_c, q))
+            Md_c, phi_c = self._phi(*compiled.window_central(self._win, self._win_c, q),
+                                    mass=False)
         win = np.empty_like(self._win)
         if not compiled.window_step(self._win, self._win_c, q, tau, M, Md, phi, Md_c, phi_c,
                                     has_c, win):
@@ -167,10 +170,8 @@ class WindowEstimator(_Estimator):
         """Per joint, the standard deviation of the estimate per unit (rad) of white encoder
         noise at the configuration q (None: the last sample's): ||a|| ||M_i,:|| (the kernel's
         second-derivative weights, docs/external_torque.md)."""
-        n, W = self.n, self.samples
-        a = self._win_c[4 + n:4 + n + W + 1]
         M = self._mass if q is None else self.model.mass_matrix(q)
-        return np.linalg.norm(a) * np.linalg.norm(M, axis=1)
+        return self._a_norm * np.sqrt(np.einsum("ij,ij->i", M, M))
 
     def step_response(self, elapsed: float) -> float:
         """Fraction of a step of tau_ext shown ``elapsed`` s after it: K(elapsed / T)."""
