@@ -159,6 +159,25 @@ def test_offline_detects_the_contact_within_10_ms(arm_run):
     assert loop.rejected == {"measurement_non_finite": 1, "joint_states_joint_missing": 1}
 
 
+def test_wrench_at_the_contact_link_is_the_bags_force(arm_run):
+    """wrench.link = link_6 (force only): T after the 45 N push along x starts, the wrench
+    through the Jacobian is that force within 2 %; before it, within 0.2 N of zero."""
+    loop = TorqueLoop(build(dict(PARAMS, **{"wrench.link": "link_6", "wrench.force_only": True})))
+    got = {}
+    for k in range(int(np.searchsorted(arm_run.t, 5.0)), int(np.searchsorted(arm_run.t, 6.075))):
+        res = loop.process(BASE_NS + int(round(arm_run.t[k] * 1e9)), JOINTS,
+                           arm_run.q_measured[k], arm_run.tau[k])
+        got[round(arm_run.t[k], 3)] = res.wrench
+    assert np.max(np.abs(got[5.9])) < 0.2
+    assert np.allclose(got[6.07][:3], [45.0, 0.0, 0.0], atol=0.02 * 45) and not got[6.07][3:].any()
+
+
+def test_a_wrench_link_the_urdf_has_not_is_refused_by_name():
+    from fto_ros.core.errors import ConfigError
+    with pytest.raises(ConfigError, match="parameter 'wrench.link': the URDF has no link"):
+        build(dict(PARAMS, **{"wrench.link": "link_9"}))
+
+
 def test_compiled_steps_equal_the_numpy_steps(arm_run):
     """The window estimator through steps_compiled (numba) and through steps (numpy) on 1.5 s
     of the contact bag around the contact: the same estimates up to rounding."""

@@ -10,7 +10,9 @@ Publishes    external_torque (JointState, effort = tau_ext in Nm by joint name, 
              measurement's stamp), ~/external_torque_momentum (the same from the
              generalized-momentum observer, when external_torque.momentum_gain > 0),
              ~/collision (JointState at each detection: name = the joints that fired, effort =
-             their tau_ext estimate, the measurement's stamp), /diagnostics (per joint:
+             their tau_ext estimate, the measurement's stamp), ~/wrench (WrenchStamped, when
+             wrench.link is set: the wrench at that link's origin, world axes, frame_id
+             "world", through the Jacobian), /diagnostics (per joint:
              state, threshold, residual, guaranteed detection time, refusals).
 
 Lifecycle: configure declares and checks the parameters and builds the model (a bad one
@@ -29,6 +31,7 @@ from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
+from geometry_msgs.msg import WrenchStamped  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 
 from ..core.errors import ConfigError  # noqa: E402
@@ -106,6 +109,10 @@ class ExternalTorqueNode(LifecycleNode):
             self._pub_momentum = self.create_publisher(JointState, "~/external_torque_momentum",
                                                        OUT_QOS)
             self._io.append(self._pub_momentum)
+        self._pub_wrench = None
+        if s["wrench.link"]:
+            self._pub_wrench = self.create_publisher(WrenchStamped, "~/wrench", OUT_QOS)
+            self._io.append(self._pub_wrench)
         self._io.append(self.create_subscription(JointState, s["topics.joint_states"],
                                                        self._on_joint_states, IN_QOS))
         self._diag_timer = self.create_timer(s["diagnostics.period"], self._publish_diagnostics)
@@ -153,6 +160,12 @@ class ExternalTorqueNode(LifecycleNode):
         if res.momentum is not None and self._pub_momentum is not None:
             self._pub_momentum.publish(self._joint_state(msg.header, joints,
                                                          res.momentum.tolist()))
+        if res.wrench is not None and self._pub_wrench is not None:
+            w = WrenchStamped()
+            w.header.stamp, w.header.frame_id = msg.header.stamp, "world"
+            f, m = w.wrench.force, w.wrench.torque
+            f.x, f.y, f.z, m.x, m.y, m.z = (float(x) for x in res.wrench)
+            self._pub_wrench.publish(w)
         if res.collision is not None:
             fired = res.collision.joints
             self._pub_collision.publish(self._joint_state(

@@ -41,6 +41,7 @@ class TorqueResult:
     tau_ext: np.ndarray | None
     momentum: np.ndarray | None
     collision: Collision | None
+    wrench: np.ndarray | None = None          # (f; m) at wrench.link, world axes
 
 
 class TorqueLoop:
@@ -52,6 +53,7 @@ class TorqueLoop:
         self.detector = setup.detector
         self.joints = list(self.model.joints)
         self.h = self.est.h
+        self.link, self.force_only = setup.flat["wrench.link"], setup.flat["wrench.force_only"]
         self.intake = JointIntake(self.joints, ["position"], ["effort"], 1)
         self.accepted = 0
         self.rejected: Counter = Counter()              # reason -> samples
@@ -137,12 +139,14 @@ class TorqueLoop:
             return None
         self.accepted += 1
         self.last_t = stamp
-        event = None
+        event = wrench = None
         if tau_ext is not None:
             self.tau_ext = tau_ext
             self.scale = self.est.noise_gain()
             event = self.detector.update(stamp, tau_ext, self.scale)
-        return TorqueResult(tau_ext, momentum, event)
+            if self.link:
+                wrench = self.model.wrench(self.link, q, tau_ext, self.force_only)
+        return TorqueResult(tau_ext, momentum, event, wrench)
 
     # -- /diagnostics -----------------------------------------------------------------------
     def joint_status(self, contact_size: float, miss: float) -> list[dict]:

@@ -15,6 +15,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Mapping
 
+import numpy as np
+
 from ..core.errors import ConfigError, short
 from ..observers.base import Param
 from ..rigid import RigidBodyModel, load_model
@@ -50,6 +52,10 @@ TORQUE_SETTINGS: tuple[Param, ...] = (
           "the third derivative of the positions", gt=0.0),
     Param("external_torque.momentum_gain", "double", 0.0, "K_O (1/s) of the generalized-momentum "
           "observer published on ~/external_torque_momentum as a baseline (0: not run)", min=0.0),
+    Param("wrench.link", "string", "", "a link (or frame) of the URDF: publish ~/wrench, the "
+          "wrench (f; m) at its origin, world axes, whose joint torques J^T (f; m) best match "
+          "tau_ext (least squares; empty: not published)"),
+    Param("wrench.force_only", "bool", False, "~/wrench: a pure force at the link (m = 0)"),
     Param("collision.false_alarms_per_hour", "double", 1e-2, "the false-alarm bound that sets "
           "the per-joint threshold", gt=0.0),
     Param("collision.sigma", "double_array", [], "the residual's noise level in radians of encoder "
@@ -131,4 +137,10 @@ def build(flat: Mapping[str, Any]) -> TorqueSetup:
                                      release=s["collision.release"], hold=s["collision.hold"])
     except ValueError as err:
         raise ConfigError("collision.false_alarms_per_hour", short(str(err))) from None
+    link = s["wrench.link"]
+    if link:
+        try:
+            model.jacobian(link, np.zeros(model.n))
+        except ConfigError as err:
+            raise ConfigError("wrench.link", err.problem) from None
     return TorqueSetup(model, estimator, momentum, detector, s)
