@@ -263,7 +263,9 @@ class Driver:
                 return value
             node.check_alive()
             time.sleep(0.05)
-        pytest.fail(f"timed out waiting for {what}:\n{node.log()[-3000:]}")
+        with self.lock:
+            last = {k: v for k, v in self.status.items() if k.endswith("external torque")}
+        pytest.fail(f"timed out waiting for {what} (last status: {last}):\n{node.log()[-3000:]}")
 
     def publish(self, ns, names, q, tau):
         msg = JointState()
@@ -302,7 +304,9 @@ def test_live_estimates_equal_offline_and_the_contact_is_published(tmp_path, arm
         for i, m in enumerate(messages):
             driver.publish(*m)
             if i % 10 == 9:
-                time.sleep(0.02)      # ~500 messages/s: the stamps, not the pace, are time
+                # ~200 messages/s: the stamps, not the pace, are the node's time, and a
+                # best-effort input on a loaded machine loses nothing at that pace
+                time.sleep(0.05)
         summary = f"{NODE.lstrip('/')}: external torque"
         done = driver.wait_for(
             lambda: driver.status.get(summary, {}).get("accepted") == str(loop.accepted)

@@ -86,6 +86,7 @@ class ExternalTorqueNode(LifecycleNode):
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         try:
             self.loop = TorqueLoop(build(self._declared_values()))
+            self.loop.warm_up()
         except ConfigError as exc:
             self.loop, self._failure = None, exc
         except Exception as exc:  # noqa: BLE001  a model that cannot be built: unconfigured

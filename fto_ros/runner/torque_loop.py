@@ -64,6 +64,17 @@ class TorqueLoop:
         self.tau_ext: np.ndarray | None = None
         self.scale: np.ndarray | None = None
 
+    def warm_up(self) -> None:
+        """Run the estimators over one window of samples at rest, then restart them: the
+        compiled steps are loaded (or compiled) now, not at the first message (a second's
+        stall there would overflow a 1 kHz input queue)."""
+        zeros = np.zeros(len(self.joints))
+        for est in (self.est, self.gmo):
+            if est is not None:
+                for k in range(self.est.samples + 2):
+                    est.update(k * self.h, zeros, zeros)
+                est.reset()
+
     def _reject(self, reason: str) -> None:
         self.rejected[reason] += 1
 
