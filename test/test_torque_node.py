@@ -380,3 +380,37 @@ def test_launch_file_starts_the_node_under_ros2_launch(tmp_path):
     log = launch.log()
     assert code == 0, log
     assert "Traceback" not in log and "[ERROR]" not in log, log
+
+
+@pytest.mark.live
+@pytest.mark.slow
+def test_autostart_false_waits_for_ros2_lifecycle(tmp_path):
+    """-p autostart:=false: the node stays unconfigured (no /diagnostics) until `ros2
+    lifecycle set` configures and activates it; deactivate stops its /diagnostics."""
+    import ros2_cli
+    ros2_cli.ros2_command()
+    domain = _domain(227)
+    env = ros2_cli.env_for(_ros_env(domain, tmp_path), ros2_cli.ament_prefix(tmp_path / "p"))
+    node = _node(tmp_path, domain, f"plant.urdf:={URDF}", "autostart:=false",
+                 "diagnostics.period:=0.2")
+    driver = Driver(domain)
+    try:
+        got = driver.wait_for(lambda: "unconfigured" in ros2_cli.run(
+            env, "lifecycle", "get", NODE).stdout, START_S, "the unconfigured node", node)
+        assert got and not driver.status
+        for transition in ("configure", "activate"):
+            res = ros2_cli.run(env, "lifecycle", "set", NODE, transition)
+            assert "Transitioning successful" in res.stdout, res.stdout
+        driver.wait_for(lambda: driver.status, 30, "/diagnostics once active", node)
+        res = ros2_cli.run(env, "lifecycle", "set", NODE, "deactivate")
+        assert "Transitioning successful" in res.stdout, res.stdout
+        time.sleep(0.5)
+        with driver.lock:
+            driver.status.clear()
+        time.sleep(1.0)
+        with driver.lock:
+            assert not driver.status
+    finally:
+        driver.close()
+        code = node.stop()
+    assert code == 0 and "Traceback" not in node.log(), node.log()
