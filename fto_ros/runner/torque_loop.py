@@ -93,8 +93,8 @@ class TorqueLoop:
         if not refused.any() and np.abs(q).max() < MAX_POSITION \
                 and np.abs(tau).max() < MAX_TORQUE:
             return q, tau
-        bad_q = ~np.isfinite(q) | ~(np.abs(q) < MAX_POSITION)
-        bad_u = ~np.isfinite(tau) | ~(np.abs(tau) < MAX_TORQUE)
+        bad_q = ~(np.abs(q) < MAX_POSITION)               # NaN and inf included
+        bad_u = ~(np.abs(tau) < MAX_TORQUE)
         ok = refused == 0
         refused[ok & bad_q] = np.where(np.isfinite(q[ok & bad_q]), CODE["measurement_implausible"],
                                        CODE["measurement_non_finite"])
