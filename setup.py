@@ -48,6 +48,8 @@ setup(
             'observer_node = fto_ros.nodes.observer_node:main',
             'fto-observer-managed = fto_ros.nodes.managed_node:main',
             'managed_observer_node = fto_ros.nodes.managed_node:main',
+            'fto-external-torque = fto_ros.nodes.torque_node:main',
+            'external_torque_node = fto_ros.nodes.torque_node:main',
             'fto-replay = fto_ros.replay.cli:main',
             'fto-simulate = fto_ros.cli.simulate:main',
             'fto-play = fto_ros.nodes.player:main',

@@ -106,3 +106,66 @@ def test_junk_samples_are_rejected_and_leave_no_trace(stream, make):
         if a is not None:
             np.testing.assert_array_equal(a, b)
         np.testing.assert_array_equal(clean.velocity, dirty.velocity)
+
+
+def test_junk_messages_into_the_external_torque_node_loop(stream):
+    """The node's per-message path (runner/torque_loop.py) with junk JointStates: a junk
+    value on one joint or a whole field, junk names (missing, duplicated, unknown, none) and
+    junk stamps: never an exception, never a non-finite estimate, every junk message refused
+    and counted (its joint's reason per joint)."""
+    from fto_ros.runner.torque_loop import TorqueLoop
+    from fto_ros.runner.torque_settings import build
+    loop = TorqueLoop(build({"robot_description": URDF, "plant.joints": JOINTS,
+                             "external_torque.window": 0.01, "collision.calibration": 0.01}))
+    r, rng, junk = stream, np.random.default_rng(21), 0
+    ns = lambda t: 10 ** 9 + int(round(t * 1e9))  # noqa: E731
+    for k in range(r.t.size):
+        if k:
+            for _ in range(3):
+                names, q, tau, stamp = list(JOINTS), list(r.q_measured[k]), list(r.tau[k]), \
+                    ns(r.t[k])
+                what = rng.integers(4)
+                if what == 0:
+                    fam, bad = junk_values(1, rng)
+                    if fam not in ("non_finite", "absurd"):
+                        continue                  # a JointState field holds floats only
+                    (q if rng.random() < 0.5 else tau)[int(rng.integers(7))] = bad[0]
+                    key = f"node_joint_{fam}"
+                elif what == 1:
+                    size = int(rng.choice([0, 6, 8, 14]))
+                    if rng.random() < 0.5:
+                        q = [0.0] * size
+                    else:
+                        tau = [0.0] * size
+                    key = "node_field_wrong_length"
+                elif what == 2:
+                    fam = ["missing", "duplicate", "none", "unknown_only"][rng.integers(4)]
+                    if fam == "missing":
+                        i = int(rng.integers(7))
+                        del names[i], q[i], tau[i]
+                    elif fam == "duplicate":
+                        names[int(rng.integers(1, 7))] = names[0]
+                    elif fam == "none":
+                        names, q, tau = [], [], []
+                    else:
+                        names = [f"other_{i}" for i in range(7)]
+                    key = f"node_names_{fam}"
+                else:
+                    last = loop.last_t
+                    fam, t = junk_stamps(r.t[k - 1], rng)
+                    if not np.isfinite(t) or abs(t) > 1e9 or fam in ("stamp_back_big",
+                                                                      "stamp_future"):
+                        continue                  # not an int64 stamp, or a restart (not junk)
+                    stamp = ns(t) if last is not None else 0
+                    key = f"node_{fam}"
+                COUNTS[key] += 1
+                before = sum(loop.rejected.values())
+                assert loop.process(stamp, names, q, tau) is None, key
+                assert sum(loop.rejected.values()) == before + 1, key
+                junk += 1
+        res = loop.process(ns(r.t[k]), JOINTS, r.q_measured[k], r.tau[k])
+        assert res is not None
+        assert res.tau_ext is None or np.all(np.isfinite(res.tau_ext))
+    assert junk > 50 and sum(loop.rejected.values()) == junk
+    assert sum(sum(c.values()) for c in loop.joint_rejected) >= loop.rejected.get(
+        "measurement_non_finite", 0)

@@ -16,6 +16,7 @@ from ..observers import REGISTRY
 from ..core.params import Param
 from ..plant.block import PLANT_PARAMS
 from ..runner.settings import SETTINGS
+from ..runner.torque_settings import TORQUE_SETTINGS
 from .simulate_plant import SIM_PARAMS
 
 
@@ -104,6 +105,9 @@ def main(argv: list[str] | None = None) -> int:
     print("\n#### `simulation` — `fto-simulate --params` (node name `fto_simulate`; "
           "docs/bring_your_own_plant.md)\n")
     print(table(SIM_PARAMS, prefix="simulation."))
+    print("\n#### The external-torque node — `fto-external-torque` (node name "
+          "`external_torque_node`; docs/external_torque.md)\n")
+    print(table(TORQUE_SETTINGS))
     return 0
 
 

@@ -6,6 +6,7 @@ torques with a guaranteed time, collision detection.
 - :mod:`.steps`: the estimators' per-sample steps, pure functions over flat float64 arrays
   (the robust exact differentiator's velocity, the windowed momentum estimator, the
   generalized-momentum observer, finite differences);
+- :mod:`.steps_compiled`: the window estimator's steps compiled (numba), used when numba is on;
 - :mod:`.external_torque`: the adapters that own a design, restart it and call Pinocchio;
 - :mod:`.collision`: thresholds from a false-alarm bound, detection with hysteresis.
 

@@ -20,8 +20,10 @@ import math
 
 import numpy as np
 
+from ..core import jit
 from ..core.errors import FtoRosError
 from . import steps
+from . import steps_compiled as compiled
 from .model import RigidBodyModel
 
 
@@ -88,11 +90,12 @@ class _Estimator:
         self._t = float(t)
         return self.tau_ext
 
-    def _phi(self, q, v):
-        """(M, Mdot, C^T v - g - Coulomb friction) at (q, v)."""
-        M, Md, CTv, g = self.model.momentum_terms(q, v)
+    def _phi(self, q, v, mass: bool = True):
+        """(M, Mdot, C^T v - g - Coulomb friction) at (q, v); without M if not ``mass``."""
+        M, Md, CTv, g = self.model.momentum_terms(q, v, mass)
         m = self.model
-        return M, Md, CTv - g - m.coulomb * np.tanh(v / m.friction_width)
+        phi = CTv - g - m.coulomb * np.tanh(v / m.friction_width)
+        return (M, Md, phi) if mass else (Md, phi)
 
 
 class WindowEstimator(_Estimator):
@@ -104,14 +107,17 @@ class WindowEstimator(_Estimator):
 
     def __init__(self, model: RigidBodyModel, sample_period: float = 1e-3, window: float = 0.06,
                  velocity_order: int = 2, velocity_L: float = 300.0, velocity_rho: float = 2.0,
-                 central: int = steps.CENTRAL):
+                 central: int = steps.CENTRAL, compiled: bool | None = None):
         W = round(window / sample_period)
+        #: the steps of :mod:`.steps_compiled` (default: when numba is on), else the numpy ones
+        self.compiled = jit.ENABLED if compiled is None else bool(compiled)
         if not (8 <= W <= 2000 and abs(W * sample_period - window) < 1e-9 + 1e-6 * window):
             raise ValueError(f"window: must be 8..2000 sample periods, got {window!r} s")
         self.samples = W
         self.window = W * sample_period
         self._red_c = steps.red_consts(velocity_order, velocity_L, velocity_rho)
         self._win_c = steps.window_consts(model.n, W, sample_period, model.viscous, central)
+        self._a_norm = float(np.linalg.norm(self._win_c[4 + model.n:4 + model.n + W + 1]))
         super().__init__(model, sample_period)
 
     @property
@@ -120,10 +126,12 @@ class WindowEstimator(_Estimator):
         return self.window
 
     def _restart(self):
-        self._red = None
+        self._red = self._mass = None
         self._win = steps.window_init(self._win_c)
 
     def _update(self, h, q, tau):
+        if self.compiled:
+            return self._update_compiled(h, q, tau)
         red = steps.red_init(self._red_c, q) if h is None else \
             steps.red_step(self._red, self._red_c, h, q)
         v = steps.red_output(red, self._red_c, self.n)[:, 1].copy()
@@ -134,17 +142,37 @@ class WindowEstimator(_Estimator):
             _, Md_c, phi_c = self._phi(*central)
         win = steps.window_step(self._win, self._win_c, self.h if h is None else h, q, tau,
                                 M, Md, phi, Md_c, phi_c)
-        self._red, self._win, self.velocity = red, win, v
+        self._red, self._win, self.velocity, self._mass = red, win, v, M
         out = steps.window_output(win, self._win_c)
         self.tau_ext = None if out is None else out.copy()
 
-    def noise_gain(self, q) -> np.ndarray:
+    def _update_compiled(self, h, q, tau):
+        """The same step through :mod:`.steps_compiled` (the sample is validated)."""
+        red = steps.red_init(self._red_c, q) if h is None else \
+            compiled.red_step(self._red, self._red_c, h, q)
+        if not np.all(np.isfinite(red)):
+            raise ValueError("differentiator: the step gives a non-finite estimate")
+        v = steps.red_output(red, self._red_c, self.n)[:, 1].copy()
+        M, Md, phi = self._phi(q, v)
+        has_c = self._win[0] >= 2 * self._win_c[3]
+        Md_c, phi_c = Md, phi
+        if has_c:
+            Md_c, phi_c = self._phi(*compiled.window_central(self._win, self._win_c, q),
+                                    mass=False)
+        win = np.empty_like(self._win)
+        if not compiled.window_step(self._win, self._win_c, q, tau, M, Md, phi, Md_c, phi_c,
+                                    has_c, win):
+            raise ValueError("window: a model term or the estimate is not finite")
+        self._red, self._win, self.velocity, self._mass = red, win, v, M
+        out = steps.window_output(win, self._win_c)
+        self.tau_ext = None if out is None else out.copy()
+
+    def noise_gain(self, q=None) -> np.ndarray:
         """Per joint, the standard deviation of the estimate per unit (rad) of white encoder
-        noise at the configuration q: ||a|| ||M_i,:|| (the kernel's second-derivative weights,
-        docs/external_torque.md)."""
-        n, W = self.n, self.samples
-        a = self._win_c[4 + n:4 + n + W + 1]
-        return np.linalg.norm(a) * np.linalg.norm(self.model.mass_matrix(q), axis=1)
+        noise at the configuration q (None: the last sample's): ||a|| ||M_i,:|| (the kernel's
+        second-derivative weights, docs/external_torque.md)."""
+        M = self._mass if q is None else self.model.mass_matrix(q)
+        return self._a_norm * np.sqrt(np.einsum("ij,ij->i", M, M))
 
     def step_response(self, elapsed: float) -> float:
         """Fraction of a step of tau_ext shown ``elapsed`` s after it: K(elapsed / T)."""

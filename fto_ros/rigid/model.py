@@ -27,7 +27,9 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from ..core import jit
 from ..core.errors import ConfigError, short
+from . import steps_compiled as compiled
 
 #: largest URDF accepted, in bytes (file or string); real arm URDFs are well under 1 MB
 MAX_URDF_BYTES = 4 * 1024 * 1024
@@ -233,6 +235,8 @@ class RigidBodyModel:
         self.friction_width = w
         self.effort_limit = np.array(model.effortLimit[self._iv])
         self._perm = np.ix_(self._iv, self._iv)
+        self._identity = bool(model.nv == n and np.array_equal(self._iv, np.arange(n)))
+        self._lower = np.tril_indices(model.nv, -1)
 
     # -- coordinates ------------------------------------------------------------------------
     @staticmethod
@@ -316,11 +320,28 @@ class RigidBodyModel:
         w = np.linalg.lstsq(A, np.asarray(tau_ext, dtype=float), rcond=1e-9)[0]
         return np.concatenate([w, np.zeros(3)]) if force_only else w
 
-    def momentum_terms(self, q, v) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(M, Mdot, C^T v, g) at (q, v): what the estimators' steps take from the model."""
-        M = self.mass_matrix(q)
-        C = self.coriolis_matrix(q, v)
-        return M, C + C.T, C.T @ np.asarray(v, dtype=float), self.gravity(q)
+    def momentum_terms(self, q, v, mass: bool = True):
+        """(M, Mdot, C^T v, g) at (q, v): what the estimators' steps take from the model
+        (the values of mass_matrix, coriolis_matrix and gravity, with one conversion of q and
+        v: this is called twice per sample); M is None without ``mass``."""
+        pin, model, data = self._pin, self.model, self.data
+        qp, v = self._q(q), np.asarray(v, dtype=float)
+        if self._identity and jit.ENABLED:           # the same values, compiled
+            Mp = pin.crba(model, data, qp) if mass else data.M
+            C = pin.computeCoriolisMatrix(model, data, qp, v)
+            M, Md, ctv = compiled.momentum_post(Mp, C, v, mass)
+            g = np.array(pin.computeGeneralizedGravity(model, data, qp))
+            return (M if mass else None), Md, ctv, g
+        M = None
+        if mass:
+            M = np.array(pin.crba(model, data, qp))
+            M[self._lower] = M.T[self._lower]             # CRBA fills the upper triangle
+        C = np.array(pin.computeCoriolisMatrix(model, data, qp, self._v(v)))
+        g = np.array(pin.computeGeneralizedGravity(model, data, qp))
+        if not self._identity:
+            M = None if M is None else M[self._perm]
+            C, g = C[self._perm], g[self._iv]
+        return M, C + C.T, C.T @ v, g
 
 
 def load_model(joints: Sequence[str] | None, *, urdf: str | os.PathLike | None = None,
