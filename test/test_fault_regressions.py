@@ -188,7 +188,7 @@ def test_diagnostics_error_clears_after_clean_data_and_after_reset(motor):
     obs = r.observer
     obs._wk = np.append(obs._wk, 301.0)             # the bug's countdown, in the work memory
     obs._kernels = jit.function_list([jit.kernel(_failing_kernel, jit.KERNEL)], jit.KERNELS)
-    r._bind()
+    r._stack()                                        # the runner's rows: the longer work memory
     levels = []
     for k in range(len(t)):
         r.set_input(t[k], sim.u_k[k])

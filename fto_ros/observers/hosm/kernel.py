@@ -62,18 +62,30 @@ def _fill_step_matrix(A, Bw, C, fzero, h, out):
     from ...core.discretize import foh_matrices
     n, p = A.shape[0], C.shape[0]
     m = Bw.shape[1] - n - p
-    S = np.hstack(foh_matrices(A, Bw, h))             # [Phi | G0 | G1], w = [u, F, ytil]
-    w = m + n + p
-    Phi, G0, G1 = S[:, :n], S[:, n:n + w], S[:, n + w:]
-    G1L = G1[:, m + n:]
-    Mimp = np.eye(n) + G1L @ C
-    if np.linalg.cond(Mimp) > 1e12:
+    with np.errstate(all="ignore"):
+        try:
+            S = np.hstack(foh_matrices(A, Bw, h))     # [Phi | G0 | G1], w = [u, F, ytil]
+        except (ValueError, np.linalg.LinAlgError):   # a design that overflows the exponential
+            return 0
+        if not np.isfinite(S).all():
+            return 0
+        w = m + n + p
+        Phi, G0, G1 = S[:, :n], S[:, n:n + w], S[:, n + w:]
+        G1L = G1[:, m + n:]
+        Mimp = np.eye(n) + G1L @ C
+        try:
+            if not np.isfinite(Mimp).all() or np.linalg.cond(Mimp) > 1e12:
+                return 0
+            if fzero:               # no F columns: [z, u0, ytil0, u1, y1]
+                blocks = [Phi, G0[:, :m], G0[:, m + n:], G1[:, :m], G1L]
+            else:
+                blocks = [Phi, G0, G1[:, :m + n], G1L]
+            K = np.linalg.solve(Mimp, np.hstack(blocks))
+        except np.linalg.LinAlgError:
+            return 0
+    if not np.isfinite(K).all():
         return 0
-    if fzero:               # no F columns: [z, u0, ytil0, u1, y1]
-        blocks = [Phi, G0[:, :m], G0[:, m + n:], G1[:, :m], G1L]
-    else:
-        blocks = [Phi, G0, G1[:, :m + n], G1L]
-    out[:, :] = np.linalg.solve(Mimp, np.hstack(blocks))
+    out[:, :] = K
     return 1
 
 
