@@ -99,6 +99,22 @@ def _from_message(msg) -> JointStateArrays:
                             arr(msg.position), arr(msg.velocity), arr(msg.effort))
 
 
+def decode_payload(decoder: JointStateDecoder, payload: bytes
+                   ) -> tuple[JointStateArrays | None, str]:
+    """One serialised JointState: ``(arrays, "numpy")`` by ``decoder``, ``(arrays, "rclpy")``
+    by rclpy's deserialiser (a payload the numpy decoder does not take), or ``(None,
+    reason)`` when neither takes it (``undecodable_joint_state: <error type>``)."""
+    try:
+        return decoder.decode(payload), "numpy"
+    except ValueError:
+        pass
+    try:
+        msg = deserialize_message(payload, JointState)
+    except Exception as exc:  # rclpy raises RuntimeError / its own types; never into the executor
+        return None, f"undecodable_joint_state: {type(exc).__name__}"
+    return _from_message(msg), "rclpy"
+
+
 class JointStateIntake:
     """A raw JointState subscription handing numpy arrays; see the module docstring.
 
@@ -130,17 +146,12 @@ class JointStateIntake:
     # ---------------------------------------------------------------- decoding
     def decode(self, payload: bytes) -> JointStateArrays | None:
         """One payload; None (counted, on_reject) when neither decoder takes it."""
-        try:
-            return self.decoder.decode(payload)
-        except ValueError:
-            pass
-        try:
-            msg = deserialize_message(payload, JointState)
-        except Exception as exc:  # rclpy raises RuntimeError / its own types; never into the executor
-            self._reject(f"undecodable_joint_state: {type(exc).__name__}")
-            return None
-        self.fallback += 1
-        return _from_message(msg)
+        js, how = decode_payload(self.decoder, payload)
+        if js is None:
+            self._reject(how)
+        elif how == "rclpy":
+            self.fallback += 1
+        return js
 
     def _reject(self, reason: str) -> None:
         self.rejected += 1
