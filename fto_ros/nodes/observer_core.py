@@ -483,6 +483,16 @@ class ObserverCore(JointsCore):
             runner.settings["diagnostics.hardware_id"] or runner.observer_type, values)
 
     # ------------------------------------------------------------- accessors
+    def executor_kind(self) -> str:
+        """The executor to spin this node with (``node.executor``; 'single' before the
+        parameters are declared, i.e. a managed node not configured yet)."""
+        if self._runner is None:
+            return "single"
+        kind = self._runner.settings["node.executor"]
+        if kind == "auto":
+            return "events" if self._runner.joints else "single"
+        return kind
+
     @property
     def runner(self) -> Runner:
         """The runner (for tests and embedding)."""
