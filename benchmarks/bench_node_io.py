@@ -236,8 +236,12 @@ def _stop(proc: subprocess.Popen) -> None:
 
 
 def measure(variant: str, joints: int, rate: float, duration: float, domain: int, tmp: str,
-            in_qos: str = "be:100") -> dict:
-    """One run: node and publisher subprocesses, this process listening.  The row."""
+            in_qos: str = "be:100", node_cmd: list[str] | None = None,
+            startup_s: float = 60.0) -> dict:
+    """One run: node and publisher subprocesses, this process listening.  The row.
+    ``node_cmd``: another node to measure (it subscribes to /joint_states and publishes
+    one JointState with the input's stamp on /joint_states_out), e.g. the observer node
+    (benchmarks/bench_live_arm.py); ``startup_s``: how long it may take to come up."""
     os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(domain))
     import struct
 
@@ -252,8 +256,10 @@ def measure(variant: str, joints: int, rate: float, duration: float, domain: int
     tag = f"{variant}_{joints}_{int(rate)}_{in_qos.replace(':', '')}"
     stats_path = os.path.join(tmp, f"stats_{tag}.json")
     node_log = open(os.path.join(tmp, f"node_{tag}.log"), "w")
-    node = subprocess.Popen(me + ["--role", "node", "--variant", variant, "--joints", str(joints),
-                                  "--in-qos", in_qos, "--stats", stats_path],
+    if node_cmd is None:
+        node_cmd = me + ["--role", "node", "--variant", variant, "--joints", str(joints),
+                         "--in-qos", in_qos, "--stats", stats_path]
+    node = subprocess.Popen(node_cmd,
                             cwd=ROOT, env=env, stdout=node_log, stderr=subprocess.STDOUT)
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=domain)
@@ -286,7 +292,8 @@ def measure(variant: str, joints: int, rate: float, duration: float, domain: int
            "load": os.getloadavg()[0]}
     pub = None
     try:
-        if not spin_until(lambda: drv.count_publishers(OUT_TOPIC) > 0 or node.poll() is not None, 60) \
+        if not spin_until(lambda: drv.count_publishers(OUT_TOPIC) > 0 or node.poll() is not None,
+                          startup_s) \
                 or node.poll() is not None:
             raise RuntimeError(f"{variant} node did not come up; see {node_log.name}")
         sent_file = os.path.join(tmp, f"sent_{tag}.npy")
