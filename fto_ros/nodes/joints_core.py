@@ -23,6 +23,7 @@ publishes them).
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
@@ -58,10 +59,15 @@ class JointsCore:
                                    s["joint_states.input_fields"], obs.n_inputs)
         self._decoder = JointStateDecoder()
         self._decoded_by_rclpy = 0
+        self._every_joint = np.arange(len(runner.joints))
+        self._refresh_sim_time()
         ent = list(self._out.publishers)
         ent.append(subscription("joint_states", JointState, s["topics.joint_states"],
                                 message_info_callback(self._on_joint_payload), raw=True))
         return ent
+
+    def _refresh_sim_time(self) -> None:
+        self._sim_time = self.get_clock().ros_time_is_active
 
     # --------------------------------------------------------------- samples
     def _on_joint_payload(self, payload: bytes, info: dict) -> None:
@@ -78,9 +84,10 @@ class JointsCore:
         if not self._from_owner("joint_states", info, sec * _NS + nanosec):
             return
         t = sec + nanosec * 1e-9
-        clock = self.get_clock()
+        # the wall clock (the ROS clock without sim time), not checked on sim time: as the
+        # single-observer mode; whether sim time is on is refreshed with the outputs
         bad = stamp_check(sec, nanosec, t, self._runner.settings,
-                          None if clock.ros_time_is_active else clock.now().nanoseconds * 1e-9)
+                          None if self._sim_time else time.time_ns() * 1e-9)
         if bad is not None:
             self._reject(bad)
             return
@@ -90,8 +97,10 @@ class JointsCore:
         y, u, refused = self._intake.take_message(js)
         status, x, ui, conv = self._runner.process_joints_arrays(t, y, u, refused)
         last = status[-1]
-        rows = np.flatnonzero(last == L.OUTPUT)
-        if len(rows) < len(last):
+        if not last.any():                   # every joint an output (L.OUTPUT == 0)
+            rows = self._every_joint
+        else:
+            rows = np.flatnonzero(last == L.OUTPUT)
             for j in np.flatnonzero(last != L.OUTPUT):
                 st = int(last[j])
                 why = reason(int(status[0, j])) if st == L.SKIPPED else reason(st)

@@ -140,10 +140,16 @@ class ObserverCore(JointsCore):
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         ent.append(self.create_timer(s["diagnostics.period"], self._publish_diagnostics,
                                      clock=steady))
-        ent.append(self.create_timer(REFRESH_S, self._out.refresh, clock=steady))
+        ent.append(self.create_timer(REFRESH_S, self._refresh, clock=steady))
         self._entities = ent
         self._jump_handle = None
         self._arm_jump_callback()
+
+    def _refresh(self) -> None:
+        """Every REFRESH_S: which outputs have subscribers (and, per-joint mode, sim time)."""
+        self._out.refresh()
+        if self._runner.joints:
+            self._refresh_sim_time()
 
     def close(self) -> None:
         """Destroy what ``open`` made: no inputs, no outputs; the observer's state is kept."""
