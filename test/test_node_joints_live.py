@@ -79,7 +79,9 @@ class JointDriver(Driver):
                       lambda m: (m.header.stamp.sec * 10**9 + m.header.stamp.nanosec, list(m.name),
                                  np.array(m.position), np.array(m.velocity), np.array(m.effort)))
         self._collect(DiagnosticArray, "diag_all", "/diagnostics", 100,
-                      lambda m: {st.name: {kv.key: kv.value for kv in st.values} for st in m.status})
+                      lambda m: {st.name: dict({kv.key: kv.value for kv in st.values},
+                                               level=str(st.level[0]), message=st.message)
+                                 for st in m.status})
 
     def joint_status(self, name: str, timeout=10.0) -> dict:
         start = len(self.got("diag_all"))
