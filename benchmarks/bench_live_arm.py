@@ -168,6 +168,9 @@ def main(argv=None) -> int:
     ap.add_argument("--duration", type=float, default=10.0, help="publishing time per run (s)")
     ap.add_argument("--repeats", type=int, default=3, help="rounds of every kind")
     ap.add_argument("--domain", type=int, default=int(os.environ.get("ROS_DOMAIN_ID", "220")))
+    ap.add_argument("--stamps", choices=("send", "nominal"), default="send",
+                    help="header stamps: the wall clock at sending (jittered steps), or the "
+                    "publisher's start + k / rate (a fixed-rate control loop's time)")
     ap.add_argument("--micro", action="store_true", help="the in-process stages instead")
     ap.add_argument("--json", help="also write the rows to this JSON file")
     args = ap.parse_args(argv)
@@ -186,7 +189,8 @@ def main(argv=None) -> int:
                       file=sys.stderr, flush=True)
                 try:
                     row = io.measure("echo" if cmd is None else kind, joints, args.rate,
-                                     args.duration, args.domain, tmp, node_cmd=cmd, startup_s=180.0)
+                                     args.duration, args.domain, tmp, node_cmd=cmd, startup_s=300.0,
+                                     stamps=args.stamps)
                 except Exception as exc:  # keep going: one failed run must not hide the rest
                     row = {"variant": kind, "joints": joints, "error": str(exc),
                            "load": os.getloadavg()[0]}
@@ -197,7 +201,7 @@ def main(argv=None) -> int:
                 else:
                     print(f"#   cpu {row['cpu_us']:.1f} us/msg ({row['cpu_pct']:.0f} %), p50 "
                           f"{row['lat_p50']:.3f} ms, lost {row['lost']}/{row['sent']}", file=sys.stderr)
-    print(f"Live arm, {args.duration:g} s per run, {os.cpu_count()} CPU(s), "
+    print(f"Live arm, {args.duration:g} s per run, stamps '{args.stamps}', {os.cpu_count()} CPU(s), "
           f"Python {sys.version.split()[0]}, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}")
     print(table(rows, kinds))
     for r in rows:

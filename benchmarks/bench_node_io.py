@@ -167,7 +167,9 @@ def run_node(variant: str, joints: int, in_qos: str, stats_path: str) -> int:
 
 
 # ---------------------------------------------------------------- the publisher
-def run_publisher(joints: int, rate: float, duration: float, out: str) -> int:
+def run_publisher(joints: int, rate: float, duration: float, out: str, stamps: str = "send") -> int:
+    """``stamps``: 'send' (the wall clock when the message is sent) or 'nominal' (the wall
+    clock at the start + k / rate: a fixed-rate control loop's time, steps exact)."""
     import math
 
     import rclpy
@@ -191,12 +193,13 @@ def run_publisher(joints: int, rate: float, duration: float, out: str) -> int:
     period = 1.0 / rate
     print(json.dumps({"start": True}), flush=True)
     t0 = time.monotonic()
+    wall0 = time.time_ns()
     stamp = msg.header.stamp
     for k in range(n):
         delay = t0 + k * period - time.monotonic()
         if delay > 0:
             time.sleep(delay)
-        now = time.time_ns()
+        now = time.time_ns() if stamps == "send" else wall0 + round(k * period * 1e9)
         stamp.sec, stamp.nanosec = divmod(now, 1_000_000_000)
         msg.position[0] = math.sin(k * period)
         msg.velocity[0] = float(k)
@@ -237,11 +240,12 @@ def _stop(proc: subprocess.Popen) -> None:
 
 def measure(variant: str, joints: int, rate: float, duration: float, domain: int, tmp: str,
             in_qos: str = "be:100", node_cmd: list[str] | None = None,
-            startup_s: float = 60.0) -> dict:
+            startup_s: float = 60.0, stamps: str = "send") -> dict:
     """One run: node and publisher subprocesses, this process listening.  The row.
     ``node_cmd``: another node to measure (it subscribes to /joint_states and publishes
     one JointState with the input's stamp on /joint_states_out), e.g. the observer node
-    (benchmarks/bench_live_arm.py); ``startup_s``: how long it may take to come up."""
+    (benchmarks/bench_live_arm.py); ``startup_s``: how long it may take to come up;
+    ``stamps``: the publisher's (run_publisher)."""
     os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(domain))
     import struct
 
@@ -297,7 +301,8 @@ def measure(variant: str, joints: int, rate: float, duration: float, domain: int
                 or node.poll() is not None:
             raise RuntimeError(f"{variant} node did not come up; see {node_log.name}")
         sent_file = os.path.join(tmp, f"sent_{tag}.npy")
-        pub = subprocess.Popen(me + ["--role", "publisher", "--joints", str(joints), "--rate", str(rate),
+        pub = subprocess.Popen(me + ["--role", "publisher", "--stamps", stamps, "--joints", str(joints),
+                                     "--rate", str(rate),
                                      "--duration", str(duration), "--out", sent_file],
                                cwd=ROOT, env=env, stdout=subprocess.PIPE, text=True)
         if not pub.stdout.readline():   # {"start": true} when publishing starts
@@ -460,11 +465,12 @@ def main(argv=None) -> int:
     ap.add_argument("--in-qos", default="be:100", help=argparse.SUPPRESS)
     ap.add_argument("--stats", help=argparse.SUPPRESS)
     ap.add_argument("--out", help=argparse.SUPPRESS)
+    ap.add_argument("--stamps", choices=("send", "nominal"), default="send", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.role == "node":
         return run_node(args.variant, args.joints[0], args.in_qos, args.stats)
     if args.role == "publisher":
-        return run_publisher(args.joints[0], args.rate, args.duration, args.out)
+        return run_publisher(args.joints[0], args.rate, args.duration, args.out, args.stamps)
     if args.micro:
         print(micro())
         return 0
