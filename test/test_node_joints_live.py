@@ -44,7 +44,8 @@ def joint_params(tmp, tuning: str, extra: dict | None = None) -> list:
            "joint_states": {"output_joints": []},
            "estimated_joint_states": {"joint_names": [], "position_states": [],
                                       "velocity_states": [], "effort_states": []},
-           "diagnostics": {"period": 0.2, "expected_rate": 0.0}}
+           "diagnostics": {"period": 0.2, "expected_rate": 0.0},
+           "qos": {"depth": 1000}}     # a loaded machine's node falls behind, loses none
     for k, v in (extra or {}).items():
         own.setdefault(k, {}).update(v) if isinstance(v, dict) else own.__setitem__(k, v)
     path = tmp / "joints.yaml"
