@@ -12,6 +12,9 @@ offline replay runs; this mixin only
   clock at its receipt, ``receipt_clock.py``);
 - offers ``~/reset``, ``~/enable`` and ``~/set_state`` (service and topic) and restarts
   the observer when the ROS clock jumps back (bag loop, sim restart).
+
+In per-joint mode (``joints``) the JointState intake, the outputs, ``~/set_state`` and the
+per-joint /diagnostics statuses are joints_core.py's.
 """
 from __future__ import annotations
 
