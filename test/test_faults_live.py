@@ -462,3 +462,121 @@ def test_messages_the_middleware_drops_are_counted(tmp_path):
         driver.close()
         code = node.stop()
     assert code == 0, node.log()
+
+
+# ------------------------------------------------------------ issue 20: the per-joint node
+#: junk of one joint inside a message that carries the others clean
+JOINT_JUNK = ("nan", "absurd", "missing_joint", "duplicate_joint", "nan_effort")
+#: junk of a whole message (an extra one): refused for every joint alike (short_effort: the
+#: input field shorter than the names, so no joint's input is known)
+MESSAGE_JUNK = ("back_1s", "negative", "future", "short_effort")
+
+
+def _joint_junk(m: JointState, joint: str, kind: str) -> None:
+    i = m.name.index(joint)
+    if kind == "nan":
+        m.position[i] = float("nan")
+    elif kind == "absurd":
+        m.position[i] = 1e300
+    elif kind == "missing_joint":
+        keep = [k for k in range(len(m.name)) if k != i]
+        m.name = [m.name[k] for k in keep]
+        m.position, m.velocity, m.effort = ([list(f)[k] for k in keep]
+                                            for f in (m.position, m.velocity, m.effort))
+    elif kind == "duplicate_joint":          # the joint twice (another robot's entry)
+        m.name = list(m.name) + [joint]
+        m.position, m.velocity, m.effort = (list(f) + [list(f)[i]]
+                                            for f in (m.position, m.velocity, m.effort))
+    else:
+        m.effort[i] = float("nan")
+
+
+@pytest.mark.slow
+def test_joints_node_keeps_each_joints_junk_in_that_joint(tmp_path):
+    """Per-joint mode, 3 joints at 1 kHz with 2 % per-joint junk on j2 and j3 and 0.5 % junk
+    messages: j1 (never junked) loses only the whole-message junk and its estimate converges;
+    every joint accounts for every message; the node ends OK."""
+    from test_node_joints_live import JOINTS, JointDriver, connect, joint_params, start
+    files = joint_params(tmp_path, "dc_motor_luenberger", {
+        "plant": {"constants": ["b0=40", "b1=15", "a1=35", "a2=1", "a3=36.4", "a4=200"]},
+        "diagnostics": {"period": 0.2, "window": 1.0, "stale_after": 1.0, "expected_rate": 0.0}})
+    domain = _domain(33)
+    node = start(tmp_path, files, domain)
+    driver = JointDriver(domain)
+    rng = np.random.default_rng(20)
+    ts, x, v = plant = _simulate(3.0)
+    junk_until = len(ts) - 1500
+    joint_junk = {j: {} for j in JOINTS}
+    message_junk: dict[str, int] = {}
+    try:
+        connect(driver, node)
+        base_ns = time.time_ns() - 30 * 10**9
+        t0 = time.monotonic()
+        for k in range(len(ts)):
+            ns = base_ns + k * 10**6
+            m = JointState(name=list(JOINTS))
+            m.header.stamp = _stamp(ns)
+            m.position, m.velocity, m.effort = [x[k, 0]] * 3, [0.0] * 3, [v[k]] * 3
+            if k < junk_until and rng.random() < 0.02:
+                joint, kind = JOINTS[1 + rng.integers(2)], JOINT_JUNK[rng.integers(len(JOINT_JUNK))]
+                _joint_junk(m, joint, kind)
+                joint_junk[joint][kind] = joint_junk[joint].get(kind, 0) + 1
+                COUNTS[f"live_joint_junk_{kind}"] += 1
+            driver.pub_js.publish(m)
+            if k < junk_until and rng.random() < 0.005:
+                kind = MESSAGE_JUNK[rng.integers(len(MESSAGE_JUNK))]
+                bad = JointState(name=list(JOINTS))
+                bad.position, bad.velocity, bad.effort = [x[k, 0]] * 3, [0.0] * 3, [v[k]] * 3
+                bad.header.stamp = _stamp({"back_1s": ns - 10**9, "future": ns + 10**14}.get(kind, ns))
+                if kind == "negative":
+                    bad.header.stamp.sec = -5
+                elif kind == "short_effort":
+                    bad.effort = bad.effort[:-1]
+                driver.pub_js.publish(bad)
+                message_junk[kind] = message_junk.get(kind, 0) + 1
+                COUNTS[f"live_joint_message_junk_{kind}"] += 1
+            _pace(k, t0, 1000.0)
+        last_ns = base_ns + (len(ts) - 1) * 10**6
+        driver.wait_for(lambda: any(o[0] >= last_ns - 50 * 10**6 for o in driver.got("joint_out")),
+                        20, "the estimates of the last samples", node)
+        seen = len(driver.got("diag_all"))
+        first_after = driver.wait_for(lambda: next(iter(driver.got("diag_all")[seen:]), None), 10,
+                                      "a status after the last estimates", node)
+        st = driver.wait_quiet(node, "messages received: joint_states")
+        received = _count(st, "messages received: joint_states")
+        status = {j: driver.joint_status(f"observer_node: joint {j}") for j in JOINTS}
+        node_status = driver.joint_status("observer_node: observer")
+        node.check_alive()
+        print(f"per-joint live faults: junk per joint {joint_junk}, junk messages {message_junk}, "
+              f"received {received}; rejected per joint "
+              + ", ".join(f"{j} {status[j]['samples rejected']}" for j in JOINTS))
+        assert sum(sum(d.values()) for d in joint_junk.values()) >= 20 and sum(message_junk.values()) >= 3
+        for j in JOINTS:
+            acc, rej = int(status[j]["samples accepted"]), int(status[j]["samples rejected"])
+            assert 0 <= received - (acc + rej) <= 1, (j, received, acc, rej)   # every message
+            assert int(status[j].get("restarts: time_jump", "0")) == 0        # junk never restarts
+        # j1 lost only what every joint lost (whole messages): its reasons are the message
+        # reasons, as many as j2 and j3 have of each
+        j1 = {k: v for k, v in status["j1"].items() if k.startswith("rejected: ")}
+        for key, count in j1.items():
+            for j in JOINTS[1:]:
+                assert int(status[j].get(key, "0")) >= int(count), (key, j)
+        assert not any(key.startswith(("rejected: measurement", "rejected: joint_states_joint",
+                                       "rejected: joint_states_dup")) for key in j1), j1
+        for j in JOINTS[1:]:
+            assert int(status[j]["samples rejected"]) > int(status["j1"]["samples rejected"]), j
+        out = driver.got("joint_out")
+        assert all(np.all(np.isfinite(o[2])) and np.all(np.isfinite(o[3])) for o in out)
+        est = {o[0]: np.array([o[2][o[1].index("j1")], o[3][o[1].index("j1")], x[0, 2]])
+               for o in out if "j1" in o[1]}
+        errs = _errors_after(est, base_ns, plant, T_CONVERGED)[:, :2]
+        assert len(errs) > 0.2 * (len(ts) - 500), len(errs)
+        assert np.all(errs.max(axis=0) < TOL[:2]), errs.max(axis=0)
+        # the first statuses after the last estimates: the last 1.5 s were clean, every joint OK
+        assert first_after["observer_node: observer"]["level"] == "0", first_after
+        for j in JOINTS:
+            assert first_after[f"observer_node: joint {j}"]["level"] == "0", (j, first_after)
+        assert node_status["joints"] == "j1, j2, j3"
+    finally:
+        driver.close()
+        assert node.stop() == 0, node.log()

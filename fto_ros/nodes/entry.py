@@ -13,13 +13,14 @@ from typing import Callable
 import rclpy
 import rclpy.logging
 import rclpy.utilities
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException
 
 from ..core.errors import ConfigError
 from ..observers import REGISTRY
 from ..runner.params_file import load_params_file
 from ..runner.runner import CONVERGENCE_FIELDS
 from ..runner.settings import SETTINGS
+from .fast_io import create_executor, spin
 
 NODE_NAME = "observer_node"
 
@@ -159,9 +160,10 @@ def run(make_node: Callable, prog: str, exe: str, managed: bool,
         # the imports (sympy, scipy) leave ~1e5 long-lived objects: a full collection of
         # them takes ~50 ms, a latency spike at 1 kHz; nothing created so far is garbage
         gc.freeze()
-        executor = SingleThreadedExecutor()
+        # the managed node is not configured yet: single (executor_kind)
+        executor = create_executor(node.executor_kind() if not managed else "single")
         executor.add_node(node)
-        executor.spin()
+        spin(executor)
     except ConfigError as exc:
         _error_line(f"fto_ros: bad parameter: {exc}")
         code = 2

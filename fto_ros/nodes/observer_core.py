@@ -12,6 +12,9 @@ offline replay runs; this mixin only
   clock at its receipt, ``receipt_clock.py``);
 - offers ``~/reset``, ``~/enable`` and ``~/set_state`` (service and topic) and restarts
   the observer when the ROS clock jumps back (bag loop, sim restart).
+
+In per-joint mode (``joints``) the JointState intake, the outputs, ``~/set_state`` and the
+per-joint /diagnostics statuses are joints_core.py's.
 """
 from __future__ import annotations
 
@@ -32,6 +35,7 @@ from std_srvs.srv import SetBool, Trigger
 from ..core.errors import ConfigError
 from ..runner.messages import joint_state_sample
 from ..runner.runner import HELD, Runner
+from .joints_core import JointsCore
 from .outputs import REFRESH_S, Outputs
 from .parameters import NodeParameters, check_declared
 from .receipt_clock import ReceiptClock
@@ -48,7 +52,7 @@ SERVICE_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=Reliability
                          durability=DurabilityPolicy.VOLATILE)
 
 
-class ObserverCore:
+class ObserverCore(JointsCore):
     """The observer behaviour of a node (``self`` is an rclpy Node or LifecycleNode)."""
 
     _runner: Runner | None = None
@@ -88,8 +92,7 @@ class ObserverCore:
         """Outputs, subscriptions, services, timers: the observer runs."""
         runner, s = self._runner, self._runner.settings
         obs = runner.observer
-        self._out = Outputs(self.create_publisher, obs, s)
-        ent = list(self._out.publishers)
+        ent = []
         # subscriptions: sensor-data QoS (best effort, keep last qos.depth, volatile), overridable
         in_qos = QoSProfile(depth=s["qos.depth"], history=HistoryPolicy.KEEP_LAST,
                             reliability=ReliabilityPolicy.BEST_EFFORT,
@@ -98,7 +101,7 @@ class ObserverCore:
         self._sources: dict[str, SourceTracker] = {}
         self._lost_events: dict[str, int] = {}
 
-        def subscription(key, mtype, topic, callback):
+        def subscription(key, mtype, topic, callback, raw=False):
             self._lost_events[key] = 0
 
             def lost(event, key=key):       # the middleware's count (transport losses only)
@@ -107,23 +110,29 @@ class ObserverCore:
                 mtype, topic, callback, in_qos,
                 qos_overriding_options=QoSOverridingOptions.with_default_policies(),
                 event_callbacks=SubscriptionEventCallbacks(message_lost=lost,
-                                                           use_default_callbacks=False))
+                                                           use_default_callbacks=False),
+                raw=raw)
             name = sub.topic_name
             self._sources[key] = SourceTracker(lambda: self.count_publishers(name),
                                                s["time.max_gap"], s["time.jump_threshold"])
             return sub
         self._stamper = ReceiptClock(self)   # before the data subscriptions: first in a round
-        if s["source"] == "topics":
-            # input first: when u_k and y_k wait in the same executor round, u_k must be
-            # stored before y_k is processed (u given at t holds from t on)
-            if obs.n_inputs > 0:
-                ent.append(subscription("input", Float64MultiArray, s["topics.input"],
-                                        self._on_input))
-            ent.append(subscription("measured_output", Float64MultiArray,
-                                    s["topics.measured_output"], self._on_measured_output))
+        if runner.joints:                    # per-joint mode (joints_core.py)
+            ent += self._open_joints(subscription)
         else:
-            ent.append(subscription("joint_states", JointState, s["topics.joint_states"],
-                                    self._on_joint_states))
+            self._out = Outputs(self.create_publisher, obs, s)
+            ent += self._out.publishers
+            if s["source"] == "topics":
+                # input first: when u_k and y_k wait in the same executor round, u_k must be
+                # stored before y_k is processed (u given at t holds from t on)
+                if obs.n_inputs > 0:
+                    ent.append(subscription("input", Float64MultiArray, s["topics.input"],
+                                            self._on_input))
+                ent.append(subscription("measured_output", Float64MultiArray,
+                                        s["topics.measured_output"], self._on_measured_output))
+            else:
+                ent.append(subscription("joint_states", JointState, s["topics.joint_states"],
+                                        self._on_joint_states))
         ent.append(self.create_subscription(JointState, "~/set_state", self._on_set_state_topic, 10))
         ent.append(self.create_service(Trigger, "~/reset", self._on_reset, qos_profile=SERVICE_QOS))
         ent.append(self.create_service(SetBool, "~/enable", self._on_enable, qos_profile=SERVICE_QOS))
@@ -134,10 +143,16 @@ class ObserverCore:
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         ent.append(self.create_timer(s["diagnostics.period"], self._publish_diagnostics,
                                      clock=steady))
-        ent.append(self.create_timer(REFRESH_S, self._out.refresh, clock=steady))
+        ent.append(self.create_timer(REFRESH_S, self._refresh, clock=steady))
         self._entities = ent
         self._jump_handle = None
         self._arm_jump_callback()
+
+    def _refresh(self) -> None:
+        """Every REFRESH_S: which outputs have subscribers (and, per-joint mode, sim time)."""
+        self._out.refresh()
+        if self._runner.joints:
+            self._refresh_sim_time()
 
     def close(self) -> None:
         """Destroy what ``open`` made: no inputs, no outputs; the observer's state is kept."""
@@ -393,7 +408,10 @@ class ObserverCore:
 
     def _on_set_state(self, request, response):
         """rcl_interfaces/SetParameters: one double_array parameter 'state' with every state
-        in order, or one double parameter per state, named by the state's name."""
+        in order, or one double parameter per state, named by the state's name.  Per-joint
+        mode: joints_core.py."""
+        if self._runner.joints:
+            return self._on_set_state_joints(request, response)
         names = list(self._runner.observer.state_names)
         params = [Parameter.from_parameter_msg(p) for p in request.parameters]
         given = {p.name: p.value for p in params}
@@ -413,6 +431,9 @@ class ObserverCore:
         return response
 
     def _on_set_state_topic(self, msg: JointState) -> None:
+        if self._runner.joints:
+            self._on_set_state_topic_joints(msg)
+            return
         names = list(self._runner.observer.state_names)
         if list(msg.name) != names or len(msg.position) != len(names):
             self.get_logger().warning(f"set_state refused: name must be {names} with one "
@@ -425,15 +446,12 @@ class ObserverCore:
         runner = self._runner
         ns = self._stamper.now_ns()
         now = None if ns is None else ns * 1e-9
-        st = runner.status(now)
         mono = time.monotonic()
         span = mono - self._win_steady
         pub_rate = self._win_published / span if span > 0 else 0.0
         in_rate = self._win_received / span if span > 0 else 0.0
         self._win_steady, self._win_published, self._win_received = mono, 0, 0
-        level, message = st.level, st.message
-        values = list(st.values)
-        values += [
+        values = [
             ("enabled", str(self._enabled).lower()),
             ("source", runner.settings["source"]),
             ("messages received: measured_output", str(self._received["measured_output"])),
@@ -456,14 +474,34 @@ class ObserverCore:
         ]
         if self._last_stamp is not None and now is not None:
             values.append(("last stamp age (s)", f"{now - self._last_stamp:.4f}"))
+        disabled = "" if self._enabled else "disabled via ~/enable; samples dropped: "
+        if runner.joints:
+            (level, message, values), hw, joints = self._joint_statuses(
+                now, values, 0 if self._enabled else 1, disabled)
+            self._out.publish_statuses(ns, [(level, f"{self.get_name()}: observer", message,
+                                             hw, values)] + joints)
+            return
+        st = runner.status(now)
+        level, message = st.level, st.message
+        values = list(st.values) + values
         if not self._enabled:
             level = max(level, 1)
-            message = "disabled via ~/enable; samples dropped: " + message
+            message = disabled + message
         self._out.publish_diagnostics(
             ns, level, f"{self.get_name()}: observer", message,
             runner.settings["diagnostics.hardware_id"] or runner.observer_type, values)
 
     # ------------------------------------------------------------- accessors
+    def executor_kind(self) -> str:
+        """The executor to spin this node with (``node.executor``; 'single' before the
+        parameters are declared, i.e. a managed node not configured yet)."""
+        if self._runner is None:
+            return "single"
+        kind = self._runner.settings["node.executor"]
+        if kind == "auto":
+            return "events" if self._runner.joints else "single"
+        return kind
+
     @property
     def runner(self) -> Runner:
         """The runner (for tests and embedding)."""

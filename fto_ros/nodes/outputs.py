@@ -145,10 +145,17 @@ class Outputs:
 
     def publish_diagnostics(self, ns: int | None, level: int, name: str, message: str,
                             hardware_id: str, values) -> None:
-        diag = DiagnosticArray()
-        if ns is not None:
-            diag.header.stamp.sec, diag.header.stamp.nanosec = ns // 1_000_000_000, ns % 1_000_000_000
-        diag.status = [DiagnosticStatus(level=bytes([level]), name=name, message=message,
-                                        hardware_id=hardware_id,
-                                        values=[KeyValue(key=k, value=v) for k, v in values])]
-        self.diag.publish(diag)
+        self.diag.publish(diagnostic_array(ns, [(level, name, message, hardware_id, values)]))
+
+
+def diagnostic_array(ns: int | None, statuses) -> DiagnosticArray:
+    """One DiagnosticArray stamped ``ns`` (None: unstamped) of ``statuses``: (level, name,
+    message, hardware_id, [(key, value), ...]) each."""
+    diag = DiagnosticArray()
+    if ns is not None:
+        diag.header.stamp.sec, diag.header.stamp.nanosec = ns // 1_000_000_000, ns % 1_000_000_000
+    diag.status = [DiagnosticStatus(level=bytes([level]), name=name, message=message,
+                                    hardware_id=hardware_id,
+                                    values=[KeyValue(key=k, value=v) for k, v in values])
+                   for level, name, message, hardware_id, values in statuses]
+    return diag

@@ -46,6 +46,9 @@ from .runner import (CONVERGENCE_FIELDS, ERROR, HELD, LEVEL_NAMES, MAX_HELD_INPU
 class LegacyRunner:
     """Validates samples, drives one observer, builds outputs and diagnostics."""
 
+    #: no per-joint mode (Runner refuses ``joints`` for the families that land here)
+    joints: list = []
+
     def __init__(self, flat_params: Mapping[str, Any], changed: Sequence[str] | None = None):
         """ConfigError for unusable parameters, whatever fails (build.py): blamed on the
         ``changed`` names when given (a run-time change), else on the observer's section."""

@@ -59,9 +59,18 @@ def joint_state_sample(msg, settings: Mapping[str, Any], clock: float | None = N
             return u
     stamp = msg.header.stamp
     t = stamp_seconds(stamp)
+    bad = stamp_check(stamp.sec, stamp.nanosec, t, settings, clock)
+    return bad if bad is not None else (t, y, u)
+
+
+def stamp_check(sec: int, nanosec: int, t: float, settings: Mapping[str, Any],
+                clock: float | None) -> str | None:
+    """Why a JointState stamped (sec, nanosec) = t s is refused against ``clock`` (see
+    ``joint_state_sample``: ``zero_stamp``, ``future_stamp``), or None.  The per-joint mode
+    applies it to the whole message (every joint)."""
     if clock is not None:
-        if stamp.sec == 0 and stamp.nanosec == 0 and clock > settings["time.max_gap"]:
+        if sec == 0 and nanosec == 0 and clock > settings["time.max_gap"]:
             return "zero_stamp"
         if t - clock > settings["time.future_tolerance"]:
             return "future_stamp"
-    return t, y, u
+    return None

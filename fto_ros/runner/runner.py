@@ -274,6 +274,7 @@ class Runner:
         for h in self._health:
             h.window = s["diagnostics.window"]
         self._one = self._events(1)
+        self._joint_ev: dict = {}       # process_joints_arrays' event buffers, per count
 
 
     def _events(self, count: int):
@@ -321,7 +322,7 @@ class Runner:
         new._configure(self)                     # the counters, inputs and held samples go on
         for k in ("settings", "observer_config", "observer", "observers", "_roles", "_arrays",
                   "_prog", "_r", "_nconv", "_cfg", "_rl", "_gate_args", "_rs", "_rc", "_rh",
-                  "_js", "_one", "_flat"):
+                  "_js", "_one", "_joint_ev", "_flat"):
             setattr(self, k, getattr(new, k))
         for h in self._health:
             h.window = self.settings["diagnostics.window"]
@@ -378,11 +379,32 @@ class Runner:
         then not used, the rejection counted once).  Per joint: its Output, a rejection
         reason, None (its input was refused: the measurement is not paired with it), or
         HELD."""
-        J, obs = len(self.observers), self.observer
+        status, ox, oui, oconv = self.process_joints_arrays(t, y, u, refused)
+        out: list[Output | str | None] = []
+        for j in range(len(self.observers)):
+            st = int(status[-1, j])
+            if st == L.SKIPPED:
+                out.append(reason(int(status[0, j])) if status.shape[0] == 2 else None)
+            elif st == L.OUTPUT:
+                out.append(self._output(t, j, ox[-1, j], oui[-1, j], oconv[-1, j]))
+            else:
+                out.append(reason(st))
+        return out
+
+    def process_joints_arrays(self, t: float, y: np.ndarray, u: np.ndarray | None = None,
+                              refused: np.ndarray | None = None):
+        """``process_joints`` without building an Output per joint (the node's per-message
+        path): (status (K, J), estimate (K, J, n), unknown input (K, J, r), convergence
+        (K, J, c)) with K = 2 when u is given (the input's event, then the measurement's),
+        else 1; the last row is the measurement's.  The arrays are reused by the next call."""
+        obs = self.observer
         count = 1 if u is None else 2
-        ev = self._events(count)
+        ev = self._joint_ev.get(count)
+        if ev is None:
+            ev = self._joint_ev[count] = self._events(count)
         kind, ts, vals, pre, status, ox, oui, oconv = ev
         ts[:] = t
+        pre[:] = 0
         if refused is not None:
             pre[-1] = refused
             if count == 2:
@@ -393,16 +415,7 @@ class Runner:
         kind[-1] = L.PAIRED if u is not None else L.MEASUREMENT
         vals[-1, :, :obs.n_outputs] = y
         self._run(ev)
-        out: list[Output | str | None] = []
-        for j in range(J):
-            st = int(status[-1, j])
-            if st == L.SKIPPED:
-                out.append(reason(int(status[0, j])) if count == 2 else None)
-            elif st == L.OUTPUT:
-                out.append(self._output(t, j, ox[-1, j], oui[-1, j], oconv[-1, j]))
-            else:
-                out.append(reason(st))
-        return out
+        return status, ox, oui, oconv
 
     def process_block(self, kind: np.ndarray, t: np.ndarray, values: np.ndarray,
                       refused: np.ndarray | None = None) -> Block:

@@ -122,6 +122,11 @@ SETTINGS: tuple[Param, ...] = (
           "one; fto-replay --after overrides it)", min=0.0),
     Param("qos.depth", "int", 100, "node only: subscription queue depth (best effort, keep last)",
           min=1, max=100000),
+    Param("node.executor", "string", "auto", "node only (plain node; the managed node always "
+          "runs the single-threaded one): the executor, 'events' (rclpy.experimental."
+          "EventsExecutor: about half the CPU per message, docs/benchmarks.md), 'single' "
+          "(SingleThreadedExecutor) or 'auto' (events in per-joint mode, single otherwise)",
+          choices=("auto", "events", "single")),
 )
 
 #: ROS's own parameters that may appear in a params file
