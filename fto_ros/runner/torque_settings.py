@@ -18,7 +18,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..core.errors import ConfigError, short
-from ..observers.base import Param
+from ..core.params import Param
 from ..rigid import RigidBodyModel, load_model
 from ..rigid.collision import CollisionDetector
 from ..rigid.external_torque import MomentumObserver, WindowEstimator
