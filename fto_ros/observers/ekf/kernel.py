@@ -84,6 +84,18 @@ def _restart(st, c, ic, x0, has_x0):
 
 
 @jit
+def _store(nx, ic, x, Pm, u, nu, S):
+    """x, P, u, the innovation, S and the output residual |nu| into the candidate."""
+    n, p, m = ic[N], ic[P], ic[M]
+    nx[HEADER:HEADER + n] = x
+    nx[ic[ST_P]:ic[ST_P] + n * n] = Pm.ravel()
+    nx[ic[ST_U]:ic[ST_U] + m] = u
+    nx[ic[ST_NU]:ic[ST_NU] + p] = nu
+    nx[ic[ST_S]:ic[ST_S] + p * p] = S.ravel()
+    nx[RESIDUAL] = norm(nu)
+
+
+@jit
 def _from_measurement(nx, c, ic, y, u, models):
     """Start nx from the state consistent with the first sample (the module doc); False
     (nx untouched) where that fails: the caller corrects from the restart state instead."""
@@ -112,12 +124,7 @@ def _from_measurement(nx, c, ic, y, u, models):
     S = mul(mul(H, Pm), H.T) + R
     if not math.isfinite(Pm.sum() + S.sum()):
         return False
-    nx[HEADER:HEADER + n] = x
-    nx[ic[ST_P]:ic[ST_P] + n * n] = Pm.ravel()
-    nx[ic[ST_U]:ic[ST_U] + m] = u
-    nx[ic[ST_NU]:ic[ST_NU] + p] = nu
-    nx[ic[ST_S]:ic[ST_S] + p * p] = S.ravel()
-    nx[RESIDUAL] = norm(nu)
+    _store(nx, ic, x, Pm, u, nu, S)
     nx[ic[ST_INIT]] = 0.0
     return True
 
@@ -178,13 +185,8 @@ def _take(st, nx, c, ic, h, y, u, models):
     Pm = 0.5 * (Pm + Pm.T)
     if not math.isfinite(x.sum() + Pm.sum() + nis):      # one check for all
         return _NON_FINITE
-    nx[HEADER:HEADER + n] = x
-    nx[ic[ST_P]:ic[ST_P] + n * n] = Pm.ravel()
-    nx[ic[ST_U]:ic[ST_U] + m] = u
-    nx[ic[ST_NU]:ic[ST_NU] + p] = nu
-    nx[ic[ST_S]:ic[ST_S] + p * p] = S.ravel()
+    _store(nx, ic, x, Pm, u, nu, S)
     nx[HEALTH] = nis
-    nx[RESIDUAL] = norm(nu)
     nx[ic[ST_NIS_SUM]] += nis
     nx[ic[ST_UPDATES]] += 1.0
     return 0
