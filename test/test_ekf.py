@@ -47,14 +47,18 @@ def discrete_model(h: float):
     return E[:n, :n], E[:n, n:], Qd
 
 
-def kalman(steps, ys, us, x0, P0):
-    """The textbook discrete Kalman filter (input held over each step)."""
+def kalman(steps, ys, us, x0, P0, started=False):
+    """The textbook discrete Kalman filter (input held over each step); ``started``: (x0, P0)
+    is already the first sample's (no correction with it)."""
     x, P, out = x0.copy(), P0.copy(), []
     for k, (h, y) in enumerate(zip(steps, ys)):
         if h > 0:
             Phi, G, Qd = discrete_model(h)
             x = Phi @ x + G @ us[k - 1]
             P = Phi @ P @ Phi.T + Qd
+        elif started:
+            out.append((x.copy(), P.copy()))
+            continue
         S = C @ P @ C.T + R
         K = P @ C.T / S
         x = x + (K * (y - C @ x)).ravel()
@@ -79,6 +83,60 @@ def test_on_a_linear_plant_the_ekf_is_the_discrete_kalman_filter():
         x, P = ref[k]
         assert np.allclose(f.estimate, x, rtol=1e-9, atol=1e-12), (k, f.estimate, x)
         assert np.allclose(f.covariance, P, rtol=1e-7, atol=1e-15), k
+
+
+def _irregular(seed):
+    rng = np.random.default_rng(seed)
+    steps = np.concatenate(([0.0], rng.integers(500, 2000, 99) * 1e-6))
+    return steps, np.cumsum(steps), rng.normal(size=(100, 1)), rng.normal(scale=0.1, size=100)
+
+
+def test_by_default_the_ekf_starts_from_the_first_measurement():
+    """Issue 19 item 18: no explicit initial estimate, the first sample gives the state
+    consistent with it (h = q: q = y, the unmeasured states 0) and a covariance saying so
+    (R in q, P0 in the others); from there on the textbook Kalman filter from that start."""
+    steps, t, us, ys = _irregular(5)
+    f = ekf(**LINEAR, process_noise=Q.tolist(), measurement_noise=[R],
+            initial_covariance=[1.0, 2.0, 3.0], max_step=1.0)
+    f.reset(0.0)
+    f.update(t[0], np.array([ys[0]]), us[0])
+    x0, P0 = np.array([ys[0], 0.0, 0.0]), np.diag([R, 2.0, 3.0])
+    assert np.array_equal(f.estimate, x0)
+    assert np.allclose(f.covariance, P0, rtol=1e-12, atol=1e-18), f.covariance
+    assert f.output_residual == 0.0
+    ref = kalman(steps, ys, us, x0, P0, started=True)
+    for k in range(1, 100):
+        f.update(t[k], np.array([ys[k]]), us[k])
+        x, P = ref[k]
+        assert np.allclose(f.estimate, x, rtol=1e-9, atol=1e-12), (k, f.estimate, x)
+        assert np.allclose(f.covariance, P, rtol=1e-7, atol=1e-15), k
+
+
+def test_the_zero_start_and_an_explicit_estimate_are_kept():
+    """``initial_state: zero`` is the old start (a correction from 0 with P0); an explicit
+    initial estimate wins over the default."""
+    steps, t, us, ys = _irregular(6)
+    P0 = np.diag([1e-8, 2.0, 3.0])          # P0 << R: a correction stays off y
+    for mode, x0 in (("zero", None), ("measurement", [0.3, -1.0, 0.5])):
+        f = ekf(**LINEAR, process_noise=Q.tolist(), measurement_noise=[R],
+                initial_covariance=np.diag(P0).tolist(), max_step=1.0, initial_state=mode)
+        f.reset(0.0, x0)
+        ref = kalman(steps, ys, us, np.zeros(3) if x0 is None else np.array(x0), P0)
+        for k in range(100):
+            f.update(t[k], np.array([ys[k]]), us[k])
+            assert np.allclose(f.estimate, ref[k][0], rtol=1e-9, atol=1e-12), (mode, k)
+        assert not np.isclose(ref[0][0][0], ys[0], rtol=0.1)    # the start differs from y
+
+
+def test_a_nonlinear_output_is_solved_for_the_start():
+    """h = q + 0.1 q^3: Gauss-Newton from 0 gives q with h(q) = y, P = R / h'(q)^2 in q."""
+    f = ekf(states=["q", "w"], f=["w", "-q"], h=["q + 0.1*q**3"], process_noise=[0.0, 1.0],
+            measurement_noise=[1e-4], initial_covariance=[1.0, 5.0])
+    f.reset(0.0)
+    f.update(0.0, np.array([2.0]), np.zeros(0))
+    q, w = f.estimate
+    assert q + 0.1 * q ** 3 == pytest.approx(2.0, abs=1e-12) and w == 0.0
+    assert np.allclose(f.covariance, np.diag([1e-4 / (1 + 0.3 * q * q) ** 2, 5.0]), rtol=1e-10)
 
 
 def run_filter(filt: EKF, t, y, u, x0_hat):
@@ -186,7 +244,9 @@ def test_innovation_and_its_covariance_are_exposed():
     f = ekf(**LINEAR, process_noise=Q.tolist(), measurement_noise=[R])
     f.reset(0.0)
     assert f.innovation is None and math.isnan(f.nis)
-    f.update(0.0, np.array([0.5]), np.array([1.0]))
+    f.update(0.0, np.array([0.5]), np.array([1.0]))      # the start, from this measurement
+    assert f.innovation is None and math.isnan(f.nis)
+    f.update(0.01, np.array([0.6]), np.array([1.0]))     # the first correction
     nu, S = f.innovation, f.innovation_covariance
     assert nu.shape == (1,) and S.shape == (1, 1)
     assert f.nis == pytest.approx(float(nu @ np.linalg.solve(S, nu)))

@@ -237,38 +237,76 @@ REACQUIRE = {"cubic_escape_global_norm": 0.2, "cubic_escape_high_gain": 1.3, "dc
              "dc_motor_acquire_track": 0.16}
 
 
-def reacquisition_time(cfg, at: float, seconds: float) -> float | None:
-    """Seconds after the end of a burst at ``at`` from which the error stays within twice the
-    clean run's (+1e-6) to the end; None if it never does."""
+def _noise(v, rng):
+    return [x + float(rng.normal(0.0, 1.0)) for x in v]
+
+
+def burst_run(cfg, at: float, seconds: float, corrupt=_noise, samples: int | None = None,
+              changes=None):
+    """(clean errors, errors with a burst, the burst's end, what the burst run published
+    after it): a burst of measurements ``corrupt(y, rng)`` from ``at`` on, BURST s of them or
+    ``samples`` of them; errors max_i |x_hat_i - x_i| by stamp (us)."""
     s = stream_for(cfg, seconds, truth=True)
-    errs = []
+    errs, end, published = [], at + BURST, []
     for burst in (False, True):
-        r = runner_for(cfg)
+        r = runner_for(cfg, **(changes or {}))
         rng = np.random.default_rng(0)
-        err, est = {}, None
+        err, est, hit = {}, None, 0
         for t, kind, v in s.events:
             if kind == "u":
                 r.set_input(t, v)
             elif kind == "y":
-                if burst and at <= t < at + BURST:
-                    v = [x + float(rng.normal(0.0, 1.0)) for x in v]
+                if burst and at <= t and (hit < samples if samples else t < at + BURST):
+                    v = corrupt(v, rng)
+                    hit += 1
+                    end = t if samples else end
                 out = r.process(t, v)
                 check_result(out)
                 est = (t, out.estimate) if isinstance(out, Output) else None
+                if burst and est is not None and t > end:
+                    published.append(est)
             elif est is not None and est[0] == t:
                 err[round(t * 1e6)] = float(np.max(np.abs(est[1] - np.asarray(v))))
         errs.append(err)
-    clean, junk = errs
-    keys = sorted(k for k in junk if k in clean and k >= (at + BURST) * 1e6)
+    return errs[0], errs[1], end, published
+
+
+def back_after(clean, junk, end, need_harm=True) -> float | None:
+    """Seconds after ``end`` from which the error stays within twice the clean run's (+1e-6)
+    to the end; None if it never does."""
+    keys = sorted(k for k in junk if k in clean and k > end * 1e6)
     harm = any(junk[k] > 2 * clean[k] + 1e-6 for k in keys[:5])
     # the burst does harm on every config (the check can fail; hosm and newton_inversion
     # once looked unharmed: the fault suites' deep-copied runners had their differentiators'
     # estimates frozen at the copy)
-    assert keys and harm, "the burst did no harm: nothing to re-acquire"
+    assert keys and (harm or not need_harm), "the burst did no harm: nothing to re-acquire"
     for i, k in enumerate(keys):
         if all(junk[j] <= 2 * clean[j] + 1e-6 for j in keys[i:]):
-            return k / 1e6 - (at + BURST)
+            return k / 1e6 - end
     return None
+
+
+def back_to_level(clean, junk, end, settled) -> float | None:
+    """Seconds after ``end`` from which the error stays within twice the largest error of the
+    clean run once settled (from ``settled`` s on) (+1e-6) to the end; None if it never does.
+    A level, not stamp by stamp: a restart moves a windowed observer's window ends (where
+    the noise peaks) off the clean run's."""
+    level = 2 * max(e for k, e in clean.items() if k >= settled * 1e6) + 1e-6
+    keys = sorted(k for k in junk if k > end * 1e6)
+    worst = 0.0
+    for k in reversed(keys):                  # the last stamp where the error was above
+        worst = max(worst, junk[k])
+        if worst > level:
+            nxt = [j for j in keys if j > k]
+            return nxt[0] / 1e6 - end if nxt else None
+    return keys[0] / 1e6 - end if keys else None
+
+
+def reacquisition_time(cfg, at: float, seconds: float) -> float | None:
+    """Seconds after the end of a burst at ``at`` from which the error stays within twice the
+    clean run's (+1e-6) to the end; None if it never does."""
+    clean, junk, end, _ = burst_run(cfg, at, seconds)
+    return back_after(clean, junk, end)
 
 
 @pytest.mark.slow
@@ -283,3 +321,88 @@ def test_reacquires_after_a_burst_of_plausible_junk(cfg):
     COUNTS["reacquisition"] += 1
     print(f"{cfg.name}: back within the clean error {t} s after the burst (bound {bound:g} s)")
     assert t is not None and t <= bound, (t, bound)
+
+
+#: junk inside the plausibility limits (issue 19, item 11): BIG_SAMPLES measurements of
+#: +-BIG, each sign at random
+BIG, BIG_SAMPLES = 1e6, 500
+
+
+def _big(v, rng):
+    return [float(rng.choice([-BIG, BIG]))] * len(v)
+
+
+def _settled_at(cfg) -> float:
+    gt = runner_for(cfg).observer.guaranteed_time
+    settle = gt if math.isfinite(gt) else runner_for(cfg).settings["metrics.settle_time"]
+    return max(BURST_AT, settle + 0.2)
+
+
+def _big_burst(cfg, changes=None):
+    """(seconds back at the clean run's error level after the big burst, the burst's end, the
+    largest |estimate| published after it, the largest |x| of the truth)."""
+    bound = REACQUIRE.get(cfg.name, runner_for(cfg).observer.guaranteed_time + 0.01)
+    at = _settled_at(cfg)
+    seconds = at + BIG_SAMPLES * 0.01 + bound + 0.5      # long enough at 100 Hz and faster
+    clean, junk, end, published = burst_run(cfg, at, seconds, _big, BIG_SAMPLES, changes)
+    s = stream_for(cfg, seconds, truth=True)
+    truth = max(abs(x) for t, kind, v in s.events if kind == "x" for x in v)
+    big = max((float(np.max(np.abs(e))) for _, e in published), default=0.0)
+    return back_to_level(clean, junk, end, at), end, big, truth
+
+
+def test_prescribed_time_recovers_from_junk_inside_the_limits():
+    """Issue 19 item 11: msd (T = 0.5 s) after 500 samples of +-1e6 rejected thousands of
+    clean samples as estimate_implausible (every fault restart kept the absurd estimate, a
+    warm start) and then published estimates up to 1e15.  A restart after a fault starts
+    cold: back at the clean run's error level within the config's bound (windows cut at
+    g_max) and, without g_max (exact at T), within T (+ one sample: the first clean sample
+    still steps with the last junk one's model term, and restarts) of the first clean
+    sample; nothing published after the burst is beyond the true state's size."""
+    cfg = next(c for c in CONFIGS if c.name == "msd_prescribed_time")
+    T = runner_for(cfg).observer.guaranteed_time
+    exact = {"prescribed_time.g_max": 0.0}
+    for changes, bound in ((None, REACQUIRE[cfg.name]), (exact, T + 0.002)):
+        back, end, big, truth = _big_burst(cfg, changes)
+        print(f"{changes}: back {back} s after the burst (bound {bound:g} s); largest "
+              f"|estimate| after it {big:.3g} (truth {truth:.3g})")
+        assert back is not None and back <= bound, (back, bound)
+        assert big <= truth, (big, truth)
+
+
+#: configs the +-1e6 burst still takes beyond their REACQUIRE bound (measured on faults19,
+#: seconds after the burst until back at the clean error level, None: not within the run;
+#: the largest |estimate| published after the burst): the accepted junk drives the
+#: observer far off and it re-acquires at its own pace from there (no fault restart: the
+#: estimates stay inside limits.estimate).  Not fixed by item 11's cold restart; a restart
+#: when the clean data comes back (e.g. at the outlier gate's rebase) is the open question.
+BIG_NOT_YET = {
+    "dc_motor_acquire_track": "0.258 s (bound 0.16), 1.9e7",
+    "dc_motor_ekf": "0.349 s (bound 0.3), 1.9e7",
+    "dc_motor_hosm": "3.41 s (bound 0.4), 4.9e7", "dc_motor_luenberger": "0.308 s (0.3), 1.9e7",
+    "dc_motor_newton": "None, 3.0e4", "dc_motor_single_delay_sampled": "0.182 s (0.11), 5.1e7",
+    "double_integrator_ekf": "2.79 s (2.2), 2.8e6", "fld_example1_ekf": "None, 1.3e6",
+    "fld_example1_hosm": "None, 2.1e5", "fld_example2_ekf": "None, 6.9e11",
+    "fld_example2_hosm": "None, 6.9e11", "msd_newton": "None, 1.2e4",
+    "possieri_example_ekf": "4.81 s (3.3), 9.6e4", "possieri_example_newton": "None, 1.4e4",
+    "possieri_example_newton_ndim": "4.66 s (1.0), 843",
+    "possieri_example_newton_notch": "None, 6.4e3", "third_order_ekf": "10.4 s (7.0), 3.0e6",
+    "third_order_prescribed_time": "3.08 s (2.01), 3.5e5",
+    "van_der_pol_global_norm": "None, 1.5e9", "van_der_pol_high_gain": "1.73 s (1.4), 1.7e9"}
+BIG_PARAMS = [pytest.param(c, marks=pytest.mark.xfail(
+    strict=True, reason=f"+-1e6 burst: not yet within the bound ({BIG_NOT_YET[c.name]})"))
+    if c.name in BIG_NOT_YET else c for c in CONFIGS]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("cfg", BIG_PARAMS, ids=IDS)
+def test_reacquires_after_junk_inside_the_limits(cfg):
+    """The same +-1e6 burst on every family: back at the clean run's error level within its
+    REACQUIRE bound (the configs of BIG_NOT_YET are not yet: strict xfail, so one that
+    starts passing is reported)."""
+    bound = REACQUIRE.get(cfg.name, runner_for(cfg).observer.guaranteed_time + 0.01)
+    back, end, big, truth = _big_burst(cfg)
+    COUNTS["reacquisition"] += 1
+    print(f"{cfg.name}: back {back} s after the +-1e6 burst (bound {bound:g} s); largest "
+          f"|estimate| after it {big:.3g} (truth {truth:.3g})")
+    assert back is not None and back <= bound, (back, bound)

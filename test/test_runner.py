@@ -158,8 +158,8 @@ def test_luenberger_clean_run_converges(uniform):
         assert out.convergence[3] == INF                  # asymptotic: no guarantee
         assert out.unknown_input is None
         assert out.convergence[4] == pytest.approx(-50.0)  # slowest pole
-    # starts at the default zero estimate, converges (poles -50..-70)
-    np.testing.assert_array_equal(outs[0].estimate, [0.0, 0.0, 0.0])
+    # starts from the first measurement (C^+ y: q = y, the rest 0), converges (poles -50..-70)
+    np.testing.assert_array_equal(outs[0].estimate, [uniform.y[0][0], 0.0, 0.0])
     err = [np.max(np.abs(outs[i].estimate - uniform.x[i])) for i in range(1001)]
     assert err[0] > 0.5
     assert max(err[600:]) < 1e-3                # (the voltage step at 0.7 s costs 4e-4 on I)

@@ -247,7 +247,7 @@ class KernelObserver(Observer):
         has = x0_hat is not None
         x0 = np.ascontiguousarray(x0_hat, dtype=float) if has else self._empty
         self._K.restart(self._kernels, self._models, self._st, self._nx, self._c, self._ic,
-                        self._wk, self._clk, x0, has)
+                        self._wk, self._clk, x0, has, False)
 
     def reset(self, t0=None, x0_hat=None) -> None:
         self._restart(None if x0_hat is None else np.array(x0_hat, dtype=float))

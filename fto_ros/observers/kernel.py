@@ -10,6 +10,8 @@ compiled loop serves every family (and is cached on disk):
 
 - ``op = RESTART``: forget the run; the next sample starts a new one from the initial
   estimate ``y`` (plant coordinates) when ``a > 0``, else from the family's default;
+  ``a < 0`` is a cold restart (after a fault: the estimate is not to be trusted), so a
+  family that keeps its estimate over a restart (prescribed_time) forgets it too;
   writes ``st`` directly;
 - ``op = FIRST``: the first sample (y, u) after a restart (model time 0); ``a`` is the time
   since the last sample before the restart (< 0: none), for warm restarts;
@@ -205,12 +207,13 @@ def _run(kernels, models, op, st, nx, c, ic, wk, a, b, y, u, t):
     return code
 
 
-def _restart(kernels, models, st, nx, c, ic, wk, clk, x0, has_x0):
-    """Restart at the next sample (the clock waits for it; t_last is kept)."""
+def _restart(kernels, models, st, nx, c, ic, wk, clk, x0, has_x0, cold):
+    """Restart at the next sample (the clock waits for it; t_last is kept); ``cold``: after
+    a fault, nothing of the old estimate is kept (op RESTART with a < 0)."""
     clk[CLK_T0] = math.nan
     clk[CLK_K] = 0.0
-    return _run(kernels, models, J.RESTART, st, nx, c, ic, wk, 1.0 if has_x0 else 0.0, 0.0,
-                x0, x0, math.nan)
+    a = 1.0 if has_x0 else (-1.0 if cold else 0.0)
+    return _run(kernels, models, J.RESTART, st, nx, c, ic, wk, a, 0.0, x0, x0, math.nan)
 
 
 def _update(kernels, models, st, nx, c, ic, wk, clk, t, y, u):

@@ -44,7 +44,7 @@ MAX_HELD_INPUTS = 10000
 # -- rs: scalars --------------------------------------------------------------------
 (T_LAST, T0, T_INPUT, U_OK, HELD_ON, HELD_T, HELD_TINPUT, HELD_UOK, HELD_KIND, HELD_N,
  START_FROM, ACCEPTED, REBASES, WIN_ACCEPTED, LAST_REJ, HAS_OUT, LAST_RES, LAST_CONV,
- LAST_SINCE, LAST_GT, PEND_N) = range(21)
+ LAST_SINCE, LAST_GT, PEND_N, COLD) = range(22)
 RS_SCALARS = 24
 # -- rl: the layout -----------------------------------------------------------------
 (L_N, L_P, L_M, L_R, L_NCONV, L_U, L_HELD_Y, L_HELD_U, L_X0, L_GATE, L_E, L_CONFIRM,
@@ -65,6 +65,9 @@ _SET_STATE = RESTART_CODE["set_state"]
 _OBSERVER_ERROR = RESTART_CODE["observer_error"]
 _NON_FINITE_STATE = RESTART_CODE["non_finite_state"]
 _ESTIMATE_IMPLAUSIBLE = RESTART_CODE["estimate_implausible"]
+#: restarts after which nothing of the old estimate is kept (a family that keeps its
+#: estimate over a restart, prescribed_time, starts cold)
+_FAULTS = (_OBSERVER_ERROR, _NON_FINITE_STATE, _ESTIMATE_IMPLAUSIBLE)
 _R_NON_FINITE = CODE["non_finite_estimate"]
 _R_IMPLAUSIBLE = CODE["estimate_implausible"]
 _R_M_NON_FINITE = CODE["measurement_non_finite"]
@@ -102,6 +105,8 @@ def reset(rs, rc, rl, reason, requested):
     if reason != _SET_STATE:
         rs[START_FROM] = 0.0
     rs[PEND_N] = 0.0
+    if reason in _FAULTS:        # the estimate is not to be trusted: the next start is cold
+        rs[COLD] = 1.0
     if not requested:
         rc[HW_RESTARTS + reason] += 1
 
@@ -191,12 +196,16 @@ def _sample(kernels, models, st, nx, c, ic, wk, clk, rs, rl, rc, rh, cfg, t, y, 
     first = rs[T0] != rs[T0]
     if first:
         n = rl[L_N]
+        cold = rs[COLD] > 0.0
+        rs[COLD] = 0.0
         if rs[START_FROM] > 0.0:
-            K.restart(kernels, models, st, nx, c, ic, wk, clk, rs[rl[L_X0]:rl[L_X0] + n], True)
+            K.restart(kernels, models, st, nx, c, ic, wk, clk, rs[rl[L_X0]:rl[L_X0] + n], True,
+                      cold)
         elif cfg[C_HAS_INIT] > 0.0:
-            K.restart(kernels, models, st, nx, c, ic, wk, clk, cfg[rl[L_INIT]:rl[L_INIT] + n], True)
+            K.restart(kernels, models, st, nx, c, ic, wk, clk, cfg[rl[L_INIT]:rl[L_INIT] + n], True,
+                      cold)
         else:
-            K.restart(kernels, models, st, nx, c, ic, wk, clk, cfg[0:0], False)
+            K.restart(kernels, models, st, nx, c, ic, wk, clk, cfg[0:0], False, cold)
     elif rs[PEND_N] > 0.0:
         _advance_to(kernels, models, st, nx, c, ic, wk, clk, rs, rl, rc, rh, cfg, t)
     u = rs[rl[L_U]:rl[L_U] + m]

@@ -71,6 +71,10 @@ class ExtendedKalmanFilter(KernelObserver):
               "of one sample (units^2), > 0", min=0.0, read_only=False),
         Param("initial_covariance", "double_array", [], "n diagonal entries of P at every "
               "(re)start (empty: 1 each)", min=0.0, read_only=False),
+        Param("initial_state", "string", "measurement", "where a (re)start without an explicit "
+              "initial estimate begins: the state consistent with the first measurement (least "
+              "squares on h, zero for unmeasured states, P saying so) or zero with P0 (the old "
+              "behaviour)", choices=("measurement", "zero"), read_only=False),
         Param("input_hold", "string", "zoh", "u over a sample interval: the previous sample's "
               "(zoh, like a DAC) or the mean of both ends (foh)", choices=("zoh", "foh"),
               read_only=False),
@@ -105,7 +109,8 @@ class ExtendedKalmanFilter(KernelObserver):
         models = (ModelFunction(list(model.f) + list(A), groups),
                   ModelFunction(list(model.h) + list(H), groups))
         offs, size = kernel.layout(n, p, m)
-        ic = K.layout_ic(n, K.HEADER, extra_ints=[n, p, m, int(self.foh_input)] + offs)
+        ic = K.layout_ic(n, K.HEADER, extra_ints=[n, p, m, int(self.foh_input)] + offs
+                          + [int(cfg["initial_state"] == "measurement")])
         c = np.concatenate(([math.inf, self.sub_step], self.Qc.ravel(), self.R.ravel(),
                             np.diag(p0).ravel()))
         self._build_kernel(c, ic, np.zeros(0), size, models=models)

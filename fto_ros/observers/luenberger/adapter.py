@@ -49,6 +49,10 @@ class LuenbergerObserver(KernelObserver):
               "(design: kalman)", min=0.0, read_only=False),
         Param("input_hold", "string", "zoh", "how u behaves between samples", choices=("zoh", "foh"),
               read_only=False),
+        Param("initial_state", "string", "measurement", "where a (re)start without an explicit "
+              "initial estimate begins: the state consistent with the first measurement (C^+ y: "
+              "the measured states, zero for the rest) or zero (the old behaviour)",
+              choices=("measurement", "zero"), read_only=False),
         Param("state_names", "string_array", [], "names of the n states (empty: x0, x1, ...)"),
     )
 
@@ -85,6 +89,7 @@ class LuenbergerObserver(KernelObserver):
             raise ConfigError(P + "design", f"A - L C is not Hurwitz (eigenvalues {eig})")
         self.closed_loop_poles = eig
         self.foh_input = cfg["input_hold"] == "foh"
+        self.from_measurement = cfg["initial_state"] == "measurement"
         self.state_names = cfg["state_names"] or [f"x{i}" for i in range(n)]
         if len(self.state_names) != n:
             raise ConfigError(P + "state_names", f"expected {n} names, got {len(self.state_names)}")
@@ -95,14 +100,17 @@ class LuenbergerObserver(KernelObserver):
         n, p, m = self.n_states, self.n_outputs, self.n_inputs
         w = m + n + p
         slots = 256
-        c = np.concatenate(([np.inf], Acl.ravel(), Bw.ravel(), self.C.ravel()))
+        c = np.concatenate(([np.inf], Acl.ravel(), Bw.ravel(), self.C.ravel(),
+                            np.linalg.pinv(self.C).ravel()))
         cache = cache_floats(slots, n * (n + 2 * w))
         wk = np.zeros(cache + 2 * (n + 2 * w) + n + 2 * p)
         cache_init(wk, 0, slots)
-        ic = K.layout_ic(n, K.HEADER, extra_ints=(n, p, m, int(self.foh_input), 0, slots, cache))
+        ic = K.layout_ic(n, K.HEADER, extra_ints=(n, p, m, int(self.foh_input), 0, slots, cache,
+                                                    int(self.from_measurement)))
         model = ModelFunction(self.F.exprs, [[], self.F.y_syms, self.F.u_syms])
-        self._build_kernel(c, ic, wk, K.HEADER + n + p + m, models=(model,))
+        self._build_kernel(c, ic, wk, K.HEADER + n + p + m + 1, models=(model,))
         self._st[K.HEALTH] = float(np.max(self.closed_loop_poles.real))
+        self.reset(0.0)
 
     def diagnostics(self):
         return {

@@ -5,9 +5,14 @@
 integrated exactly with w first-order held between samples (u held unless input_hold is
 foh): one cached [Phi | G0 | G1] per step size (core/exact_step.py), one product per step.
 
-State:   header | x (n) | y of the last sample (p) | u of the last sample (m)
-Consts:  header | A - L C (n x n) | [B | I | L] (n x (m + n + p)) | C (p x n)
-Ints:    header | n, p, m, foh, cache base, cache slots, scratch base
+A restart without an explicit initial estimate starts (``initial_state: measurement``) from
+the state consistent with the first sample, x = C^+ y (the least-squares, minimum-norm
+solution of C x = y: the measured states, zero for the rest), else from zero.
+
+State:   header | x (n) | y of the last sample (p) | u of the last sample (m) | 1 when the
+         next first sample sets x from y, else 0
+Consts:  header | A - L C (n x n) | [B | I | L] (n x (m + n + p)) | C (p x n) | C^+ (n x p)
+Ints:    header | n, p, m, foh, cache base, cache slots, scratch base, from-measurement
 Work:    the step cache, then scratch: z = [x, w0, w1] (n + 2w, w = m + n + p), the
          composed-step scratch (n + 2w), the new x (n), y - C x (p)
 Models:  [F(y, u)] (n terms)
@@ -23,7 +28,7 @@ from ...core.linalg import finite, matvec, norm
 from ...core.reasons import CODE
 from ..kernel import C_HEADER, HEADER, IC_HEADER, RESIDUAL
 
-N, P, M, FOH, CACHE, SLOTS, SCRATCH = range(IC_HEADER, IC_HEADER + 7)
+N, P, M, FOH, CACHE, SLOTS, SCRATCH, FROM_Y = range(IC_HEADER, IC_HEADER + 8)
 _NON_FINITE_TERM = CODE["non_finite_model_term"]
 _NON_FINITE = CODE["non_finite_estimate"]
 
@@ -39,6 +44,13 @@ def _views(c, ic):
     o += n * w
     C = c[o:o + p * n].reshape(p, n)
     return Acl, Bw, C
+
+
+@jit
+def _c_pinv(c, ic):
+    n, p, m = ic[N], ic[P], ic[M]
+    o = C_HEADER + n * n + n * (m + n + p) + p * n
+    return c[o:o + n * p].reshape(n, p)
 
 
 @jit
@@ -60,9 +72,10 @@ def _commit_outputs(nx, C, ic, wk, y, u):
 
 @jit
 def _restart(st, ic, x0, has_x0):
-    n = ic[N]
+    n, p, m = ic[N], ic[P], ic[M]
     for i in range(n):
         st[HEADER + i] = x0[i] if has_x0 else 0.0
+    st[HEADER + n + p + m] = 0.0 if has_x0 else float(ic[FROM_Y])
     st[RESIDUAL] = math.nan
     return 0
 
@@ -72,6 +85,10 @@ def _first(nx, c, ic, wk, y, u, models):
     n, p, m = ic[N], ic[P], ic[M]
     Acl, Bw, C = _views(c, ic)
     f = wk[ic[SCRATCH]:ic[SCRATCH] + n]
+    if nx[HEADER + n + p + m] > 0.0:           # start from the state consistent with y
+        matvec(_c_pinv(c, ic), y, f)
+        nx[HEADER:HEADER + n] = f
+        nx[HEADER + n + p + m] = 0.0
     # the first sample's model term is the next step's starting point
     if models[0](nx, y, u, f) != 0:
         return _NON_FINITE_TERM

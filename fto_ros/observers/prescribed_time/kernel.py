@@ -284,9 +284,10 @@ def _first(st, nx, c, ic, wk, gap, y, u, models):
 
 
 @jit
-def _restart(st, c, ic, x0, has_x0):
+def _restart(st, c, ic, x0, has_x0, cold):
     """Start a new window at the next sample: from x0 (plant coordinates), else (when the
-    estimate is kept) from the current estimate moved on to that sample, else from 0."""
+    estimate is kept, and the restart is not a ``cold`` one after a fault) from the current
+    estimate moved on to that sample, else from 0."""
     x = vec(st, ic, 1)
     if has_x0:
         if ic[HAS_SMAP]:
@@ -294,7 +295,7 @@ def _restart(st, c, ic, x0, has_x0):
         else:
             x[:] = x0
         st[HAS_PREV] = 0.0
-    elif not ic[KEEPS]:
+    elif cold or not ic[KEEPS]:
         x[:] = 0.0
         st[HAS_PREV] = 0.0
     st[HAS_T] = 0.0
@@ -308,5 +309,5 @@ def kernel(op, st, nx, c, ic, wk, a, b, y, u, models):
     if op == J.FIRST:
         return _first(st, nx, c, ic, wk, a, y, u, models)
     if op == J.RESTART:
-        return _restart(st, c, ic, y, a > 0.0)
+        return _restart(st, c, ic, y, a > 0.0, a < 0.0)
     return 0

@@ -247,8 +247,8 @@ def _kalman_tracker(cls: type[Observer], cfg: dict, sample_period: float) -> Ext
                    h=[row(lu.C, j, states) for j in range(p)],
                    process_noise=list(cfg["process_noise"]),
                    measurement_noise=[r / sample_period for r in cfg["measurement_noise"]],
-                   initial_covariance=[], input_hold=cfg["input_hold"],
-                   max_step=0.01)
+                   initial_covariance=[], initial_state=cfg["initial_state"],
+                   input_hold=cfg["input_hold"], max_step=0.01)
     k = ExtendedKalmanFilter(ekf_cfg)
     k.state_names = list(lu.state_names)
     return k
