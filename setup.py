@@ -43,16 +43,16 @@ setup(
     extras_require={'test': ['pytest>=7', 'hypothesis>=6', 'pytest-xdist>=3.5']},
     entry_points={
         'console_scripts': [
-            'fto-observer = fto_ros.nodes.observer_node:main',
+            'fto-observer = fto_ros.nodes.start:observer',
             # Same node under the name `ros2 run fto_ros observer_node` looks for.
-            'observer_node = fto_ros.nodes.observer_node:main',
-            'fto-observer-managed = fto_ros.nodes.managed_node:main',
-            'managed_observer_node = fto_ros.nodes.managed_node:main',
-            'fto-external-torque = fto_ros.nodes.torque_node:main',
-            'external_torque_node = fto_ros.nodes.torque_node:main',
+            'observer_node = fto_ros.nodes.start:observer',
+            'fto-observer-managed = fto_ros.nodes.start:managed',
+            'managed_observer_node = fto_ros.nodes.start:managed',
+            'fto-external-torque = fto_ros.nodes.start:external_torque',
+            'external_torque_node = fto_ros.nodes.start:external_torque',
             'fto-replay = fto_ros.replay.cli:main',
             'fto-simulate = fto_ros.cli.simulate:main',
-            'fto-play = fto_ros.nodes.player:main',
+            'fto-play = fto_ros.nodes.start:player',
             'fto-report = fto_ros.cli.report:main',
             'fto-design = fto_ros.cli.design:main',
             'fto-sweep = fto_ros.sweep.cli:main',

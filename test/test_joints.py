@@ -93,6 +93,6 @@ def test_roles_and_refusals():
     with pytest.raises(ConfigError, match="source"):
         Runner(topics)
     role = _multi(base)
-    role["joints.velocity_state"] = "nope"
-    with pytest.raises(ConfigError, match="joints.velocity_state"):
+    role["joint_roles.velocity_state"] = "nope"
+    with pytest.raises(ConfigError, match="joint_roles.velocity_state"):
         Runner(role)

@@ -95,6 +95,15 @@ def test_every_exception_of_the_package_is_an_fto_ros_error():
     assert len(found) >= 8, [c.__name__ for c in found]
 
 
+def test_no_parameter_name_is_the_prefix_of_another():
+    """`ros2 param dump` nests dotted names: a parameter `a` beside `a.b` breaks it (a list
+    cannot hold a key), so no declared name may be a dotted prefix of another."""
+    names = sorted(set(parameter_names()))
+    assert len(names) > 50
+    clashes = [(a, b) for a in names for b in names if b.startswith(a + ".")]
+    assert not clashes, clashes
+
+
 def test_lower_layers_load_without_rclpy():
     """Import core, models, observers, runner with rclpy made unimportable."""
     code = ("import sys; sys.modules['rclpy'] = None\n"

@@ -245,7 +245,7 @@ class ObserverCore(JointsCore):
             return
         # The runner restarts by itself on a backward sample stamp (JointState stamps may
         # jump before /clock does); count one jump once.
-        t_last = self._runner.last_sample_time
+        t_last = self._runner.last_sample_time()
         now = self.get_clock().now().nanoseconds * 1e-9
         if t_last is None or t_last <= now + self._jump_threshold:
             return

@@ -10,8 +10,8 @@ restarts: one joint's bad sample rejects or restarts that joint only.
 What a joint publishes (its position, velocity and effort in a JointState) is read off
 the plant: the position is the state the plant measures (``h = [q]``), the velocity the
 state its derivative equals (``f[q] = q_dot``), the effort the observer's unknown-input
-estimate when it identifies one; ``joints.position_state``, ``joints.velocity_state`` and
-``joints.effort`` say otherwise.  ROS-free.
+estimate when it identifies one; ``joint_roles.position_state``, ``joint_roles.velocity_state`` and
+``joint_roles.effort`` say otherwise.  ROS-free.
 """
 from __future__ import annotations
 
@@ -86,35 +86,35 @@ def roles(settings: Mapping[str, Any], plant, state_names: Sequence[str],
             raise ConfigError(key, f"{short(name)} is not a state (states: {', '.join(names)})")
         return names.index(name)
 
-    pos_name = settings["joints.position_state"]
+    pos_name = settings["joint_roles.position_state"]
     if pos_name:
-        pos = index("joints.position_state", pos_name)
+        pos = index("joint_roles.position_state", pos_name)
     else:
         pos = -1
         if plant is not None and len(plant.h) >= 1 and plant.h[0] in plant.x:
             pos = plant.x.index(plant.h[0])
         if pos < 0:
-            raise ConfigError("joints.position_state", "the plant's first output is not a state: "
+            raise ConfigError("joint_roles.position_state", "the plant's first output is not a state: "
                               "name the state published as the joint's position")
-    vel_name = settings["joints.velocity_state"]
+    vel_name = settings["joint_roles.velocity_state"]
     if vel_name:
-        vel = index("joints.velocity_state", vel_name)
+        vel = index("joint_roles.velocity_state", vel_name)
     else:
         vel = -1
         if plant is not None:
             deriv = sympy.sympify(plant.f[pos])
             if deriv in plant.x:
                 vel = plant.x.index(deriv)
-    effort = settings["joints.effort"]
+    effort = settings["joint_roles.effort"]
     if effort == "" or effort == "unknown_input":
         if has_unknown_input:
             eff = ("unknown_input", 0)
         elif effort == "unknown_input":
-            raise ConfigError("joints.effort", "this observer does not estimate an unknown input")
+            raise ConfigError("joint_roles.effort", "this observer does not estimate an unknown input")
         else:
             eff = ("none", -1)
     elif effort == "none":
         eff = ("none", -1)
     else:
-        eff = ("state", index("joints.effort", effort))
+        eff = ("state", index("joint_roles.effort", effort))
     return Roles(pos, vel, eff)

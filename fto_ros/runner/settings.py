@@ -45,12 +45,12 @@ SETTINGS: tuple[Param, ...] = (
     Param("joint_states.input_fields", "string_array", ["effort"], "per-joint mode (joints): "
           "the JointState fields that give each joint's u, in the plant's input order (only "
           "the first m are used)", choices=FIELDS),
-    Param("joints.position_state", "string", "", "per-joint mode: the state published as each "
+    Param("joint_roles.position_state", "string", "", "per-joint mode: the state published as each "
           "joint's position (empty: the state the plant's h measures)"),
-    Param("joints.velocity_state", "string", "", "per-joint mode: the state published as each "
+    Param("joint_roles.velocity_state", "string", "", "per-joint mode: the state published as each "
           "joint's velocity (empty: the state the position's derivative f equals; none if no "
           "state does)"),
-    Param("joints.effort", "string", "", "per-joint mode: what each joint's effort is: "
+    Param("joint_roles.effort", "string", "", "per-joint mode: what each joint's effort is: "
           "'unknown_input' (the observer's unknown-input estimate), a state name, 'none', or "
           "empty (the unknown input when the observer identifies one, else none)"),
     Param("joint_states.output_joints", "string_array", [], "joints whose field gives y, in order"),
