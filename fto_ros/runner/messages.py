@@ -65,9 +65,17 @@ def joint_state_sample(msg, settings: Mapping[str, Any], clock: float | None = N
             return u
     stamp = msg.header.stamp
     t = stamp_seconds(stamp)
+    why = stamp_refusal(stamp, t, settings, clock)
+    return (t, y, u) if why is None else why
+
+
+def stamp_refusal(stamp, t: float, settings: Mapping[str, Any], clock: float | None) -> str | None:
+    """``zero_stamp`` or ``future_stamp`` for a JointState's header stamp (``t`` in s) read
+    at ``clock`` (see :func:`joint_state_sample`), else None: the one stamp check of both
+    JointState intakes."""
     if clock is not None:
         if stamp.sec == 0 and stamp.nanosec == 0 and clock > settings["time.max_gap"]:
             return "zero_stamp"
         if t - clock > settings["time.future_tolerance"]:
             return "future_stamp"
-    return t, y, u
+    return None
