@@ -4,9 +4,10 @@ Convention (fto-report, the tests and the docs follow it): in a config directory
 ``<system>_plant.yaml`` holds the plant block of ``<system>`` (and the I/O settings its
 tuning files share).  It is not a tuning file itself.  Every other ``<system>_*.yaml`` is
 a tuning file; it runs with the plant file merged first (as ``--params-file plant
---params-file tuning``) unless it carries a model of its own: a ``plant.*`` parameter, or
-one of the parameters its observer would derive from the plant (the explicit form, e.g.
-``single_delay.A1``).  ``<system>`` is the longest prefix of the tuning file's name that has
+--params-file tuning``) unless it carries a model of its own: a plant block of its own
+(``plant.states``), or one of the parameters its observer would derive from the plant (the
+explicit form, e.g. ``single_delay.A1``).  Other ``plant.*`` parameters amend the plant
+file's (config/arm7_hosm.yaml: the joint model without its Coulomb friction).  ``<system>`` is the longest prefix of the tuning file's name that has
 a plant file.  ROS-free.
 """
 from __future__ import annotations
@@ -50,7 +51,7 @@ def plant_file_for(tuning: Path) -> Path | None:
         return plant
     kind = flat.get("observer.type")
     own = {f"{kind}.{k}" for k in DERIVES.get(kind, ())}
-    if any(k.startswith(PREFIX) or k in own for k in flat):
+    if any(k == PREFIX + "states" or k in own for k in flat):
         return None
     return plant
 
