@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from fto_ros.replay.replay import replay
+from fto_ros.runner import loop as L
 from fto_ros.runner import runner as R
 from fto_ros.runner.legacy import LegacyRunner
 
@@ -37,34 +38,32 @@ def load_reference():
 
 
 def log_replay(bag: Path, params: list[Path]):
-    """(calls, results, runner) of a replay: every set_input / process / reject call."""
+    """(calls, results, runner) of a replay: every set_input / process / reject call, as
+    the per-sample path made them; the replay's block calls (``process_block``) are logged
+    row by row as those calls (an input row: set_input, a measurement: process, a refused
+    row: reject), with the statuses and outputs the block returned."""
     log: list = []
     captured = {}
     patched = []
     for cls in (R.Runner, LegacyRunner):
-        orig = {k: getattr(cls, k) for k in ("set_input", "process", "reject", "__init__")}
+        orig = {k: getattr(cls, k) for k in ("process_block", "reject", "__init__")}
         patched.append((cls, orig))
 
         def make(orig):
-            def set_input(self, t, u):
-                r = orig["set_input"](self, t, u)
-                log.append((0, t, list(map(float, u)), r))
-                return r
+            def process_block(self, kind, t, values, refused=None):
+                blk = orig["process_block"](self, kind, t, values, refused)
+                _log_block(self, log, kind, t, values, refused, blk)
+                return blk
 
-            def process(self, t, y):
-                r = orig["process"](self, t, y)
-                log.append((1, t, list(map(float, y)), r))
-                return r
-
-            def reject(self, reason):
+            def reject(self, reason, *a, **k):
                 log.append((2, 0.0, [], reason))
-                return orig["reject"](self, reason)
+                return orig["reject"](self, reason, *a, **k)
 
             def init(self, *a, **k):
                 orig["__init__"](self, *a, **k)
                 captured["runner"] = self
-            return set_input, process, reject, init
-        cls.set_input, cls.process, cls.reject, cls.__init__ = make(orig)
+            return process_block, reject, init
+        cls.process_block, cls.reject, cls.__init__ = make(orig)
     try:
         with tempfile.TemporaryDirectory() as d:
             replay(bag, params, Path(d) / "o", plot=False, progress=False)
@@ -73,6 +72,28 @@ def log_replay(bag: Path, params: list[Path]):
             for k, v in orig.items():
                 setattr(cls, k, v)
     return log, captured["runner"]
+
+
+def _log_block(runner, log, kind, t, values, refused, blk) -> None:
+    """The rows of one process_block call as the per-sample calls (see log_replay)."""
+    obs = runner.observer
+    m, p = obs.n_inputs, obs.n_outputs
+    values = np.asarray(values, float).reshape(len(t), -1)
+    r = blk.unknown_input.shape[2]
+    for k in range(len(t)):
+        st = int(blk.status[k, 0])
+        why = R.reason(st)
+        if kind[k] == L.REFUSED or (refused is not None and int(np.ravel(refused[k])[0]) > 0):
+            if not isinstance(runner, LegacyRunner):     # its reject call is logged itself
+                log.append((2, 0.0, [], why))
+        elif kind[k] == L.INPUT:
+            log.append((0, float(t[k]), values[k, :m].tolist(), why))
+        elif st != L.SKIPPED:
+            out = why if st != L.OUTPUT else R.Output(
+                float(t[k]), blk.estimate[k, 0].copy(),
+                blk.unknown_input[k, 0].copy() if r and not np.isnan(blk.unknown_input[k, 0, 0])
+                else None, blk.convergence[k, 0].copy(), None)
+            log.append((1, float(t[k]), values[k, :p].tolist(), out))
 
 
 def calls_hash(log) -> str:

@@ -227,6 +227,10 @@ def test_plant_file_convention(tmp_path):
     (cfg / "sys_b_luenberger.yaml").write_text(tuning)
     assert plant_file_for(cfg / "sys_a_luenberger.yaml") == cfg / "sys_a_plant.yaml"
     assert plant_file_for(cfg / "sys_a_explicit.yaml") is None      # has its own model
+    (cfg / "sys_a_own.yaml").write_text(tuning + "    plant: {states: [z]}\n")
+    assert plant_file_for(cfg / "sys_a_own.yaml") is None            # a plant block of its own
+    (cfg / "sys_a_amend.yaml").write_text(tuning + "    plant: {f: [-x]}\n")
+    assert plant_file_for(cfg / "sys_a_amend.yaml") == cfg / "sys_a_plant.yaml"   # amends it
     assert plant_file_for(cfg / "sys_b_luenberger.yaml") is None    # no plant file
     assert plant_file_for(cfg / "sys_a_plant.yaml") is None          # not a tuning file
     assert params_files(cfg / "sys_a_luenberger.yaml") == [cfg / "sys_a_plant.yaml",

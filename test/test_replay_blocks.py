@@ -1,6 +1,7 @@
-"""The replay's block interface to the runner (replay/blocks.py, replay/events.py): a
-window's OutputBlock says for every sample what the runner did with it, and windows end
-at the diagnostics boundaries."""
+"""The replay's block interface to the runner (replay/blocks.py, replay/events.py): the
+rows of a window go through Runner.process_block in one call, a window's OutputBlock says
+for every sample what the runner did with it, and windows end at the diagnostics
+boundaries."""
 from __future__ import annotations
 
 from collections import Counter
@@ -10,7 +11,7 @@ import numpy as np
 
 from fto_ros.bag import BagWriter
 from fto_ros.replay import events as E
-from fto_ros.replay.blocks import ACCEPTED, IS_HELD, REJECTED, SampleLists, run_window
+from fto_ros.replay.blocks import ACCEPTED, IS_HELD, REJECTED, plan_rows, run_window
 from fto_ros.replay.streams import read_inputs
 from fto_ros.runner import Runner
 from fto_ros.runner.params_file import load_params_files
@@ -44,14 +45,17 @@ def test_every_sample_has_a_status_and_the_rows_are_the_accepted_ones(tmp_path):
     runner = Runner(load_params_files(params_files(ROOT / "config" / "dc_motor_luenberger.yaml")))
     inp = read_inputs(_bag(tmp_path / "junk"), runner, "/observer_node")
     ev = E.order_events(inp.streams)
-    samples = SampleLists(inp.streams)
+    rows = plan_rows(runner, ev, inp.streams)
     obs = runner.observer
     blocks = []
     period = 10 ** 8
     due = []
+    calls = []
+    orig = runner.process_block
+    runner.process_block = lambda *a: calls.append(len(a[1])) or orig(*a)
     for start, stop, boundary in E.windows(ev, int(ev.t[0]), period, 128):
-        block, _ = run_window(runner, ev, start, stop, samples, obs.n_states, 0,
-                              len(runner.convergence_fields))
+        block = run_window(runner, rows, start, stop)
+        assert len(calls) == len(blocks) + 1 or start == stop   # one compiled call a window
         blocks.append(block)
         if boundary is not None:
             due.append(boundary)
@@ -66,7 +70,7 @@ def test_every_sample_has_a_status_and_the_rows_are_the_accepted_ones(tmp_path):
     t_acc = np.concatenate([b.t_ns for b in blocks])
     assert t_acc.size == runner.accepted and np.all(np.diff(t_acc) > 0)
     x = np.concatenate([b.x for b in blocks])
-    assert x.shape == (runner.accepted, obs.n_states) and np.isfinite(x).all()
+    assert x.shape == (runner.accepted, 1, obs.n_states) and np.isfinite(x).all()
     # one diagnostics boundary per 0.1 s of the bag (the jump ahead is one event: the
     # boundaries after it are skipped to the first one past it)
     assert due == sorted(set(due)) and len(due) >= 19

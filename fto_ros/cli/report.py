@@ -159,7 +159,8 @@ def tables(pairs: list[Pair]) -> str:
     out = []
     for system in dict.fromkeys(system_of(p) for p in pairs):
         group = [p for p in pairs if system_of(p) == system]
-        out += [f"**{system}**", "", table(group), ""]
+        jointed = any(p.metrics and p.metrics.get("joints") for p in group)
+        out += [f"**{system}**", "", (joint_table if jointed else table)(group), ""]
         composed = [p for p in group if p.metrics and p.metrics.get("composition")]
         if composed:
             out += [f"*{system}, acquire then track* (the `track` rows above)", "",
@@ -250,6 +251,35 @@ def table(pairs: list[Pair]) -> str:
     return "\n".join("| " + " | ".join(str(c) for c in row) + " |" for row in rows)
 
 
+def joint_table(pairs: list[Pair]) -> str:
+    """The table of per-joint replays (``joints``): each joint's velocity error, all joints'."""
+    joints = list(dict.fromkeys(j for p in pairs if p.metrics for j in p.metrics.get("joints") or ()))
+    head = (["bag", "observer (params)", "guaranteed time (s)", "settle (s)"]
+            + [f"RMS err velocity {j}" for j in joints]
+            + ["RMS err velocity (all joints)", "max abs err velocity (all joints)", "rejected",
+               "update p50 (us)", "replay speed (x real time)"])
+    rows = [head, ["---"] * len(head)]
+    for p in pairs:
+        m = p.metrics
+        if m is None:
+            rows.append([p.bag.name, p.config.name, f"FAILED: {p.error}"] + [""] * (len(head) - 3))
+            continue
+        je = m.get("joint_errors") or {}
+        per = je.get("per_joint") or {}
+        vel = [((per.get(j) or {}).get("per_state") or {}).get("velocity") for j in joints]
+        overall = ((je.get("all_joints") or {}).get("per_state") or {}).get("velocity")
+        rows.append(
+            [p.bag.name, f"{m['observer_type']} ({p.config.name})",
+             "none" if m["guaranteed_time_s"] is None else _g(m["guaranteed_time_s"], 4),
+             _g(m["settle_time_s"], 4)]
+            + [_g(v["rms_after_settle"]) if v else "n/a" for v in vel]
+            + [_g(overall["rms_after_settle"]) if overall else "n/a",
+               _g(overall["max_abs_after_settle"]) if overall else "n/a",
+               str(m["samples_rejected"]), _g(m["update_time_us"]["p50"], 3),
+               _g(m["replay_speed_x_realtime"], 3)])
+    return "\n".join("| " + " | ".join(str(c) for c in row) + " |" for row in rows)
+
+
 def markdown(pairs: list[Pair], notes: list[str], out: Path) -> str:
     """The whole report.md."""
     lines = [REPORT_TITLE, "",
@@ -265,8 +295,12 @@ def markdown(pairs: list[Pair], notes: list[str], out: Path) -> str:
              "without a guarantee, or the config's metrics.settle_time), in state units; "
              "*(unknown input)*: the same for the identified unknown input where the bag has "
              "its truth.",
-             "- *update p50*: median wall time of one `Runner.process` call (validation, "
-             "observer update, outputs); *replay speed*: bag duration / wall time of the whole "
+             "- *RMS err velocity* (per-joint systems): each joint's published velocity against "
+             "the truth JointState by name, after *settle*; *all joints*: every joint's errors "
+             "pooled.",
+             "- *update p50*: median runner time per sample (each window's one compiled "
+             "`Runner.process_block` call over its samples: validation, observer update, "
+             "outputs); *replay speed*: bag duration / wall time of the whole "
              "replay (read, runner, write), on the machine that made this report.", ""]
     if notes:
         lines += ["## Notes", ""] + [f"- {n}" for n in notes] + [""]

@@ -14,14 +14,14 @@ from dataclasses import dataclass
 import numpy as np
 
 #: event kinds (the stream each event comes from)
-INPUT, MEAS, JOINT, TRUTH, CLOCK, TRUTH_UI = 0, 1, 2, 3, 4, 5
+INPUT, MEAS, JOINT, TRUTH, CLOCK, TRUTH_UI, TRUTH_JOINTS = 0, 1, 2, 3, 4, 5, 6
 #: the stream role of each kind
 ROLE = {INPUT: "inputs", MEAS: "meas", JOINT: "joints", TRUTH: "truth", CLOCK: "clock",
-        TRUTH_UI: "truth_ui"}
+        TRUTH_UI: "truth_ui", TRUTH_JOINTS: "truth_joints"}
 #: the rank of each kind at equal log times
-_RANK = {CLOCK: 0, INPUT: 0, MEAS: 1, JOINT: 1, TRUTH: 2, TRUTH_UI: 2}
+_RANK = {CLOCK: 0, INPUT: 0, MEAS: 1, JOINT: 1, TRUTH: 2, TRUTH_UI: 2, TRUTH_JOINTS: 2}
 #: the order the streams are merged in (stable at equal time and rank)
-_ORDER = (CLOCK, INPUT, MEAS, JOINT, TRUTH, TRUTH_UI)
+_ORDER = (CLOCK, INPUT, MEAS, JOINT, TRUTH, TRUTH_UI, TRUTH_JOINTS)
 
 
 @dataclass

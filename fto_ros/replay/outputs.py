@@ -40,8 +40,18 @@ class OutputBag:
             bag.connect(topic, ROLE_TYPES[role])
             self.counts[topic] = len(streams.copies[role])
         self._cursor = {role: 0 for role in self.copy_topic}
-        # what the node publishes: labelled arrays, stamped estimates (JointState)
-        frame = settings["output.frame_id"]
+        self.frame = settings["output.frame_id"]
+        self.ui_names: list[str] = []
+        self._estimates(fqn)
+        bag.connect("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray")
+        # as the node: status name "<node name>: observer", hardware_id defaults to the type
+        self.diag_name = f"{fqn.rsplit('/', 1)[-1]}: observer"
+        self.hw_id = settings["diagnostics.hardware_id"] or runner.observer_type
+        self.published = 0
+
+    def _estimates(self, fqn: str) -> None:
+        """Connect what the node publishes: labelled arrays, stamped estimates (JointState)."""
+        bag, obs, settings, enc, frame = self.bag, self.runner.observer, self.settings, self.enc, self.frame
         names = list(obs.state_names)
         self.est, self.est_st, self.conv = (f"{fqn}/state_estimate",
                                             f"{fqn}/state_estimate_stamped", f"{fqn}/convergence")
@@ -53,7 +63,6 @@ class OutputBag:
         fields = convergence_fields(obs)
         self.enc_conv = enc.float_block(len(fields), fields)
         self.ui = self.ui_st = None
-        self.ui_names: list[str] = []
         if obs.has_unknown_input:
             self.ui_names = list(getattr(obs, "unknown_input_names", None) or
                                  [f"zeta{j}" for j in range(obs.n_outputs)])
@@ -68,15 +77,10 @@ class OutputBag:
             if settings["estimated_joint_states.joint_names"] else None
         if self.js:
             bag.connect(self.js, JOINT_STATE)
-        self.frame = frame
-        bag.connect("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray")
+        self.js_map = self.runner.joint_state_map
         for topic in (self.est, self.est_st, self.conv, self.ui, self.ui_st, self.js):
             if topic:
                 self.counts[topic] = 0
-        # as the node: status name "<node name>: observer", hardware_id defaults to the type
-        self.diag_name = f"{fqn.rsplit('/', 1)[-1]}: observer"
-        self.hw_id = settings["diagnostics.hardware_id"] or runner.observer_type
-        self.published = 0
 
     # -- copies -------------------------------------------------------------------------
     def copy(self, ev: E.Events, start: int, stop: int) -> None:
@@ -95,42 +99,44 @@ class OutputBag:
 
     # -- estimates ----------------------------------------------------------------------
     def publish(self, b: OutputBlock) -> None:
-        """Write what the node publishes for the accepted samples of ``b``."""
+        """Write what the node publishes for the samples of ``b`` with an output."""
         k = b.t_ns.size
         if not k:
             return
         bag, t = self.bag, b.t_ns
         sec, nsec = t // 1_000_000_000, t % 1_000_000_000
         none = np.zeros((k, 0))
-        bag.write_block(self.est, F64_ARRAY, t, self.enc_est(b.x))
-        bag.write_block(self.est_st, JOINT_STATE, t, self.enc_est_st(sec, nsec, b.x, none, none))
+        x, c = b.x[:, 0], b.c[:, 0]
+        bag.write_block(self.est, F64_ARRAY, t, self.enc_est(x))
+        bag.write_block(self.est_st, JOINT_STATE, t, self.enc_est_st(sec, nsec, x, none, none))
         bag.write_block(self.conv, F64_ARRAY, t,
-                        self.enc_conv(np.where(np.isfinite(b.c), b.c, -1.0)))
+                        self.enc_conv(np.where(np.isfinite(c), c, -1.0)))
         self.counts[self.est] += k
         self.counts[self.est_st] += k
         self.counts[self.conv] += k
-        if self.ui is not None and b.has_w.any():
-            rows = np.flatnonzero(b.has_w)
-            w = b.w[rows]
-            bag.write_block(self.ui, F64_ARRAY, t[rows], self.enc_ui(w))
-            bag.write_block(self.ui_st, JOINT_STATE, t[rows],
-                            self.enc_ui_st(sec[rows], nsec[rows], w, none[rows], none[rows]))
-            self.counts[self.ui] += rows.size
-            self.counts[self.ui_st] += rows.size
-        if self.js is not None and b.js is not None:
-            rows = b.js_rows
-            pos, vel, eff = b.js
-            enc = self.enc.joint_state_block(b.js_names, (pos.shape[1], vel.shape[1],
-                                                          eff.shape[1]), self.frame)
-            bag.write_block(self.js, JOINT_STATE, t[rows], enc(sec[rows], nsec[rows], pos, vel, eff))
-            self.counts[self.js] += rows.size
+        if self.ui is not None and b.w.shape[2]:
+            rows = np.flatnonzero(~np.isnan(b.w[:, 0, 0]))
+            if rows.size:
+                w = b.w[rows, 0]
+                bag.write_block(self.ui, F64_ARRAY, t[rows], self.enc_ui(w))
+                bag.write_block(self.ui_st, JOINT_STATE, t[rows],
+                                self.enc_ui_st(sec[rows], nsec[rows], w, none[rows], none[rows]))
+                self.counts[self.ui] += rows.size
+                self.counts[self.ui_st] += rows.size
+        if self.js is not None and self.js_map is not None:
+            names, idx = self.js_map
+            fields = [x[:, ix] if ix is not None else none for ix in idx]
+            enc = self.enc.joint_state_block(names, tuple(f.shape[1] for f in fields), self.frame)
+            bag.write_block(self.js, JOINT_STATE, t, enc(sec, nsec, *fields))
+            self.counts[self.js] += k
         self.published += k
 
     # -- diagnostics --------------------------------------------------------------------
     def diagnostics(self, t_ns: int, received: dict, side: str = "left"):
         """``runner.status`` at ``t_ns`` (bag time), written to /diagnostics as the node
         publishes it, with the replay's equivalents of the node's own counters; the status."""
-        st = self.runner.status(t_ns / 1e9)
+        statuses = self.runner.statuses(t_ns / 1e9)
+        st = statuses[0]
         if t_ns >= MAX_STAMP_NS:            # no header stamp can say that time
             return st
         values = list(st.values) + [
@@ -138,9 +144,13 @@ class OutputBag:
             *((f"messages received: {k}", str(int(np.searchsorted(v, t_ns, side))))
               for k, v in received.items()),
             ("estimates published", str(self.published)), ("sim time", "true (offline replay)")]
+        # with joints, the node's status, then one per joint (after the node's values)
         self.bag.diagnostics("/diagnostics", t_ns, [{
             "level": st.level, "name": self.diag_name, "message": st.message,
-            "hardware_id": self.hw_id, "values": values}])
+            "hardware_id": self.hw_id, "values": values}] + [{
+                "level": js.level, "name": f"{self.diag_name}: {joint}", "message": js.message,
+                "hardware_id": self.hw_id, "values": js.values}
+                for joint, js in zip(self.runner.joints, statuses[1:])])
         self.counts["/diagnostics"] = self.counts.get("/diagnostics", 0) + 1
         level = LEVEL_NAMES.get(st.level, str(st.level))
         self.status_levels[level] = self.status_levels.get(level, 0) + 1

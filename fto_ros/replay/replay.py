@@ -50,6 +50,7 @@ from ..core.output_dir import check_output
 from ..plant.block import units_of
 from ..runner.params_file import load_params_files
 from ..runner.runner import LEVEL_NAMES, Runner
+from . import joint_metrics as JM
 from . import metrics as M
 from .run import _Run, _run
 from .topics import DEFAULT_NODE_NAME, ReplayError, node_fqn  # noqa: F401 (public names)
@@ -60,7 +61,8 @@ METRICS_SCHEMA = "fto_ros/replay-metrics/1"
 DEFAULT_MIN_ACCEPTED = 0.5
 
 _ROLE_NAMES = {"meas": "measured_output", "inputs": "input", "joints": "joint_states",
-               "truth": "true_state", "truth_ui": "true_unknown_input", "clock": "clock"}
+               "truth": "true_state", "truth_ui": "true_unknown_input", "clock": "clock",
+               "truth_joints": "true_state"}
 
 
 # --------------------------------------------------------------------------------------
@@ -185,6 +187,12 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
 
     truth_note = inp.truth_note
     truth_t = truth_x = None
+    joint_errors = None
+    if runner.joints:
+        if "truth_joints" in inp.roles:
+            joint_errors, truth_note = JM.joint_errors(runner, run, streams.truth_joints, settle)
+        # the per-joint estimates' columns stand for the plot's states (joint 0's shown)
+        x_est, conv = x_est[:, 0], conv[:, 0]
     if "truth" in inp.roles:
         truth_t, truth_x, why = _truth_rows(streams.truth, inp.truth_topic, n, "",
                                             f"the observer has {n} states")
@@ -230,7 +238,9 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
         "plot": None,
         "bag_start_s": info.start_ns / 1e9,
         "bag_duration_s": duration_s,
-        "sample_count": len(streams.meas[1]) if source == "topics" else len(streams.joints[1]),
+        # with joints, a sample is one joint's entry of a message
+        "sample_count": len(streams.meas[1]) if source == "topics" else
+        len(streams.joints[1]) * runner.n_joints,
         "input_count": len(streams.inputs[1]),
         "samples_accepted": runner.accepted,
         "samples_rejected": sum(runner.rejected.values()),
@@ -278,6 +288,9 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
             str(k): (v if isinstance(v, (int, float, str, bool)) or v is None else str(v))
             for k, v in obs.diagnostics().items()},
     }
+    if runner.joints:
+        metrics.update(joints=list(runner.joints), joint_errors=joint_errors,
+                       truth_topic=inp.truth_topic if "truth_joints" in inp.roles else None)
     if "mode" in runner.convergence_fields:            # a composition (track)
         t_rel = (t_est_ns - t_start_ns) / 1e9 if t_start_ns is not None else np.zeros(0)
         metrics["composition"] = M.composition(t_rel, conv, runner.convergence_fields)

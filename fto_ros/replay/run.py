@@ -21,7 +21,8 @@ import numpy as np
 from ..bag import BagWriter
 from ..runner.runner import Runner, convergence_fields
 from . import events as E
-from .blocks import OutputBlock, SampleLists, run_window
+from .blocks import OutputBlock, plan_rows, run_window, ui_width
+from .joint_outputs import JointsOutputBag
 from .outputs import OutputBag
 from .streams import Inputs, read_inputs
 
@@ -74,23 +75,35 @@ class _Run:
     est_conv: np.ndarray = None         # (k, ncf)
     est_ui_idx: np.ndarray = None       # (m,) rows of est_* with an unknown-input estimate
     est_ui: np.ndarray = None           # (m, r)
-    proc_s: np.ndarray = None           # (k,) s per Runner.process call with an output
+    est_ok: np.ndarray = None           # (k, J) the joint has an output in the row
+    est_w: np.ndarray = None            # (k, J, r) per-joint unknown inputs (joints mode)
+    proc_s: np.ndarray = None           # (k,) s: the update time of each row (gather)
     counts: dict = field(default_factory=dict)
     status_levels: dict = field(default_factory=dict)
     final_status: Any = None
     fallbacks: list = field(default_factory=list)
     timing: dict = field(default_factory=dict)
 
-    def gather(self, blocks: list[OutputBlock], n: int, r: int, ncf: int) -> None:
-        """The rows of every window's block, in order."""
+    def gather(self, blocks: list[OutputBlock], n: int, r: int, ncf: int, J: int) -> None:
+        """The rows of every window's block, in order (one joint: the joint axis dropped)."""
         cat = (lambda parts, shape: np.concatenate(parts) if parts else np.zeros(shape))
         self.est_t = cat([b.t_ns for b in blocks], 0).astype(np.int64)
-        self.est_x = cat([b.x for b in blocks], (0, n))
-        self.est_conv = cat([b.c for b in blocks], (0, ncf))
-        self.proc_s = cat([b.proc_s for b in blocks], 0)
-        has_w = cat([b.has_w for b in blocks], 0).astype(bool)
-        self.est_ui_idx = np.flatnonzero(has_w)
-        self.est_ui = cat([b.w for b in blocks], (0, r))[has_w]
+        x = cat([b.x for b in blocks], (0, J, n))
+        c = cat([b.c for b in blocks], (0, J, ncf))
+        w = cat([b.w for b in blocks], (0, J, r))
+        self.est_ok = cat([b.ok for b in blocks], (0, J)).astype(bool)
+        # the update time of a sample: its window's runner time over the window's samples
+        self.proc_s = cat([np.full(b.t_ns.size, b.runner_s / max(b.status.shape[0], 1))
+                           for b in blocks], 0)
+        if J == 1:
+            self.est_x, self.est_conv = x[:, 0], c[:, 0]
+            has_w = ~np.isnan(w[:, 0, 0]) if r else np.zeros(x.shape[0], bool)
+            self.est_ui_idx = np.flatnonzero(has_w)
+            self.est_ui = w[has_w, 0]
+        else:
+            self.est_x, self.est_conv, self.est_w = x, c, w
+            self.est_ui_idx = np.zeros(0, np.int64)
+            self.est_ui = np.zeros((0, r))
 
 
 def _run(runner: Runner, bag_path: Path, out_dir: Path, fqn: str, overwrite: bool,
@@ -104,7 +117,7 @@ def _run(runner: Runner, bag_path: Path, out_dir: Path, fqn: str, overwrite: boo
     streams, info = inp.streams, inp.info
     wall_read = time.perf_counter()
     ev = E.order_events(streams)
-    samples = SampleLists(streams)
+    rows = plan_rows(runner, ev, streams)
     wall_order = time.perf_counter()
 
     n, ncf = obs.n_states, len(convergence_fields(obs))
@@ -115,18 +128,16 @@ def _run(runner: Runner, bag_path: Path, out_dir: Path, fqn: str, overwrite: boo
     t_last = int(ev.t[-1]) if ev.t.size else info.end_ns
     bar = _Progress(progress, t_first, t_last)
     Path(out_dir).parent.mkdir(parents=True, exist_ok=True)   # --out a/b/c: make a/b
-    runner_s = window_s = 0.0
+    runner_s = 0.0
     blocks: list[OutputBlock] = []
     wall_loop0 = time.perf_counter()
     with BagWriter(out_dir, overwrite=overwrite, custom_data=custom, inputs=protect,
                    level=OUTPUT_ZSTD_LEVEL) as bag:
-        out = OutputBag(bag, runner, fqn, inp)
-        r_ui = len(out.ui_names)
+        out = (JointsOutputBag if runner.joints else OutputBag)(bag, runner, fqn, inp)
+        r_ui = ui_width(runner)
         for start, stop, boundary in E.windows(ev, t_first, period_ns, MAX_WINDOW_EVENTS):
-            w0 = time.perf_counter()
-            block, spent = run_window(runner, ev, start, stop, samples, n, r_ui, ncf)
-            window_s += time.perf_counter() - w0
-            runner_s += spent
+            block = run_window(runner, rows, start, stop)
+            runner_s += block.runner_s
             out.copy(ev, start, stop)
             out.publish(block)
             blocks.append(block)
@@ -138,15 +149,14 @@ def _run(runner: Runner, bag_path: Path, out_dir: Path, fqn: str, overwrite: boo
         bar.done()
         wall_loop1 = time.perf_counter()
     wall_end = time.perf_counter()
-    r.gather(blocks, n, r_ui, ncf)
+    r.gather(blocks, n, r_ui, ncf, runner.n_joints)
     r.counts, r.status_levels, r.fallbacks = out.counts, out.status_levels, out.enc.fallbacks
     r.timing = {
         "read_decode": wall_read - wall0,
+        # ordering the events and making the runner's rows of them (the intake)
         "order_events": wall_order - wall_read,
         "runner": runner_s,
-        # the per-sample calls around the runner (goes with a block runner)
-        "sample_loop": window_s - runner_s,
-        "serialize_write": (wall_loop1 - wall_loop0) - window_s,
+        "serialize_write": (wall_loop1 - wall_loop0) - runner_s,
         "close_output": wall_end - wall_loop1,
         "replay_total": wall_end - wall0,
     }

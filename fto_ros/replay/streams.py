@@ -24,7 +24,9 @@ from .topics import ReplayError, resolve_topic
 CLOCK_TOPIC, CLOCK = "/clock", "rosgraph_msgs/msg/Clock"
 #: the message type of each role's topic
 ROLE_TYPES = {"meas": F64_ARRAY, "inputs": F64_ARRAY, "joints": JOINT_STATE, "truth": F64_ARRAY,
-              "truth_ui": F64_ARRAY, "clock": CLOCK}
+              "truth_ui": F64_ARRAY, "clock": CLOCK, "truth_joints": JOINT_STATE}
+#: the roles whose messages are JointStates
+_JOINT_STATE_ROLES = ("joints", "truth_joints")
 _EMPTY = (np.zeros(0, np.int64), [])
 
 
@@ -39,6 +41,7 @@ class _Streams:
     joints: tuple = _EMPTY
     truth: tuple = _EMPTY
     truth_ui: tuple = _EMPTY                          # true unknown input, when the bag has it
+    truth_joints: tuple = _EMPTY                      # per-joint mode: the truth as JointStates
     clock: tuple = _EMPTY                             # /clock, copied to the output bag
     #: per role, the raw CDR payloads the output bag copies (Payloads or a list of bytes)
     copies: dict = field(default_factory=dict)
@@ -102,6 +105,11 @@ def _roles(info, runner, fqn: str, bag_path: Path) -> Inputs:
     truth_note = None
     if truth_topic not in topics:
         truth_note = f"no ground truth: the bag has no topic {truth_topic}"
+    elif runner.joints and topics[truth_topic].msgtype == JOINT_STATE:
+        roles["truth_joints"] = truth_topic          # mapped by joint name
+    elif runner.joints:
+        truth_note = (f"no ground truth: {truth_topic} is {topics[truth_topic].msgtype}; with "
+                      f"joints the truth is a {JOINT_STATE} (by joint name)")
     elif topics[truth_topic].msgtype != F64_ARRAY:
         truth_note = (f"no ground truth: {truth_topic} is {topics[truth_topic].msgtype}, "
                       f"not {F64_ARRAY}")
@@ -127,13 +135,13 @@ def _fast_streams(bag_path: Path, raw: dict, roles: dict[str, str]) -> _Streams:
         s.copies[role] = payloads
         if role == "clock":
             s.clock = (t, payloads)
-        elif role == "joints":
+        elif role in _JOINT_STATE_ROLES:
             msgs = decode_joint_states(payloads)
             if msgs is None:
                 typestore = typestore or shared_typestore()
                 msgs = [deserialize(typestore, p, JOINT_STATE, where, k)
                         for k, p in enumerate(payloads)]
-            s.joints = (t, msgs)
+            setattr(s, role, (t, msgs))
         else:
             block = decode_float_block(payloads)
             if block is None:
@@ -160,8 +168,8 @@ def _rosbags_streams(bag_path: Path, reader: BagReader, inp: Inputs, why: str) -
         s.copies[role] = [bytes(serialize(m, ROLE_TYPES[role])) for m in msgs]
         if role == "clock":
             s.clock = (t, s.copies[role])
-        elif role == "joints":
-            s.joints = (t, msgs)
+        elif role in _JOINT_STATE_ROLES:
+            setattr(s, role, (t, msgs))
         else:
             setattr(s, role, (t, [np.asarray(m.data, dtype=float).tolist() for m in msgs]))
     return s

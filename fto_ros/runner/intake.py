@@ -21,6 +21,7 @@ from typing import Sequence
 import numpy as np
 
 from ..core.reasons import CODE
+from .messages import stamp_check, stamp_seconds
 
 MISSING = CODE["joint_states_joint_missing"]
 DUPLICATE = CODE["joint_states_duplicate_joint"]
@@ -86,3 +87,25 @@ class JointIntake:
         """``take`` of a JointState message (rclpy or rosbags)."""
         fields = {f: getattr(msg, f) for f in set(self.out_fields) | set(self.in_fields)}
         return self.take(msg.name, fields)
+
+
+def joint_sample(intake: JointIntake, msg, settings, clock: float | None, width: int):
+    """One JointState of the per-joint mode as the runner takes it: ``(t s, stamp ns, y (J,
+    width), u (J, width) or None, refused (J,) codes, None)``; the header stamp is checked
+    against ``clock`` as :func:`~fto_ros.runner.messages.joint_state_sample` does (a
+    ``zero_stamp`` or ``future_stamp`` refuses every joint).  The node and the replay both
+    hand ``Runner.process_joints`` / ``process_block`` these."""
+    stamp = msg.header.stamp
+    t = stamp_seconds(stamp)
+    y, u, refused = intake.take_message(msg)
+    why = stamp_check(stamp.sec, stamp.nanosec, t, settings, clock)
+    if why is not None:
+        refused[:] = CODE[why]
+    J = len(intake.joints)
+    yv = np.zeros((J, width))
+    yv[:, :y.shape[1]] = y
+    uv = None
+    if u is not None:
+        uv = np.zeros((J, width))
+        uv[:, :u.shape[1]] = u
+    return t, stamp.sec * 1_000_000_000 + stamp.nanosec, yv, uv, refused, None

@@ -98,6 +98,53 @@ class LegacyRunner:
         """The labels of the ``convergence`` values: the common ones, then the observer's."""
         return convergence_fields(self.observer)
 
+    #: one observer: no joints axis
+    joints: list = []
+    n_joints = 1
+
+    def statuses(self, now: float | None = None) -> list[Status]:
+        """[the status] (``Runner.statuses`` of one observer)."""
+        return [self.status(now)]
+
+    @property
+    def joint_state_map(self):
+        """(names, per JointState field the state indices or None) of estimated_joint_states."""
+        return self._js
+
+    def process_block(self, kind, t, values, refused=None):
+        """``Runner.process_block`` for this runner: the events one by one through
+        ``set_input`` / ``process`` / ``reject`` (an unknown input it has not: NaN)."""
+        from ..core.reasons import CODE, REJECTIONS
+        from . import loop as L
+        from .runner import Block
+        obs = self.observer
+        count, n, m, p = len(t), obs.n_states, obs.n_inputs, obs.n_outputs
+        r = len(getattr(obs, "unknown_input_names", None) or range(p)) if obs.has_unknown_input else 0
+        values = np.asarray(values, dtype=float).reshape(count, -1)
+        pre = np.zeros(count, np.int16) if refused is None else np.asarray(refused).reshape(count)
+        b = Block(np.zeros((count, 1), np.int16), np.zeros((count, 1, n)),
+                  np.full((count, 1, r), np.nan), np.zeros((count, 1, len(self.convergence_fields))))
+        input_refused = False
+        for k in range(count):
+            if pre[k] < 0 or (kind[k] == L.PAIRED and input_refused):
+                b.status[k] = L.SKIPPED
+            elif kind[k] == L.REFUSED or pre[k] != 0:
+                self.reject(REJECTIONS[pre[k]])
+                b.status[k] = pre[k]
+            elif kind[k] == L.INPUT:
+                why = self.set_input(float(t[k]), values[k, :m].tolist())
+                input_refused = why is not None
+                b.status[k] = L.INPUT_TAKEN if why is None else CODE[why]
+            else:
+                out = self.process(float(t[k]), values[k, :p].tolist())
+                if out.__class__ is str:
+                    b.status[k] = L.HELD if out == HELD else CODE[out]
+                    continue
+                b.estimate[k, 0], b.convergence[k, 0] = out.estimate, out.convergence
+                if out.unknown_input is not None:
+                    b.unknown_input[k, 0] = out.unknown_input
+        return b
+
     def reconfigure(self, flat_params: Mapping[str, Any]) -> None:
         """Apply changed parameters: validate everything, then swap in a new observer.
 

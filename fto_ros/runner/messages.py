@@ -67,7 +67,8 @@ def stamp_check(sec: int, nanosec: int, t: float, settings: Mapping[str, Any],
                 clock: float | None) -> str | None:
     """Why a JointState stamped (sec, nanosec) = t s is refused against ``clock`` (see
     ``joint_state_sample``: ``zero_stamp``, ``future_stamp``), or None.  The per-joint mode
-    applies it to the whole message (every joint)."""
+    applies it to the whole message (every joint); the one stamp check of every JointState
+    intake (the node's, raw or rclpy, and the replay's)."""
     if clock is not None:
         if sec == 0 and nanosec == 0 and clock > settings["time.max_gap"]:
             return "zero_stamp"

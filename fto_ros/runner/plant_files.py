@@ -4,10 +4,10 @@ Convention (fto-report, the tests and the docs follow it): in a config directory
 ``<system>_plant.yaml`` holds the plant block of ``<system>`` (and the I/O settings its
 tuning files share).  It is not a tuning file itself.  Every other ``<system>_*.yaml`` is
 a tuning file; it runs with the plant file merged first (as ``--params-file plant
---params-file tuning``) unless it carries a model of its own: a plant block (``plant.states``:
-a tuning file that only overrides some ``plant.*`` entries, e.g. a linear ``plant.f`` for
-the observers that need one, runs on the plant file with them), or one of the parameters
-its observer would derive from the plant (the explicit form, e.g. ``single_delay.A1``).  ``<system>`` is the longest prefix of the tuning file's name that has
+--params-file tuning``) unless it carries a model of its own: a plant block of its own
+(``plant.states``), or one of the parameters its observer would derive from the plant (the
+explicit form, e.g. ``single_delay.A1``).  Other ``plant.*`` parameters amend the plant
+file's (config/arm7_hosm.yaml: the joint model without its Coulomb friction).  ``<system>`` is the longest prefix of the tuning file's name that has
 a plant file.  ROS-free.
 """
 from __future__ import annotations

@@ -583,6 +583,12 @@ class Runner:
         return names, idx
 
     @property
+    def joint_state_map(self):
+        """(names, per JointState field the state indices or None) of the
+        estimated_joint_states settings, or None when they name no joint."""
+        return self._js
+
+    @property
     def roles(self):
         """Per joint (per-joint mode): which state is its position and velocity and where its
         effort comes from (runner/joints.py); None without ``joints``."""

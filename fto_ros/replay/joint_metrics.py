@@ -1,0 +1,78 @@
+"""The per-joint mode's error metrics: each joint's published position, velocity and effort
+(runner/joints.py's OutputPlan) against a ground truth JointState mapped by joint name, as a
+user records it (``topics.true_state`` of type sensor_msgs/JointState: its position,
+velocity and effort of each joint, in any order), per joint and over all joints.
+
+A truth message without one of the joints, or whose field is not as long as its names,
+gives no truth for that joint at that time (the estimate is left out, counted as
+unmatched); a field the truth leaves empty has no error metrics.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ..runner.joints import OutputPlan
+from . import metrics as M
+
+FIELDS = ("position", "velocity", "effort")
+
+
+def _truth_columns(msgs, joints) -> dict[str, np.ndarray]:
+    """Per field, the truth (N, J) by joint name (NaN: none in that message)."""
+    out = {f: np.full((len(msgs), len(joints)), np.nan) for f in FIELDS}
+    where: dict = {}
+    for i, msg in enumerate(msgs):
+        names = tuple(msg.name)
+        idx = where.get(names)
+        if idx is None:
+            pos = {n: k for k, n in enumerate(names)} if len(set(names)) == len(names) else {}
+            idx = where[names] = np.array([pos.get(j, -1) for j in joints])
+        have = idx >= 0
+        for f in FIELDS:
+            vals = np.asarray(getattr(msg, f), dtype=float)
+            if vals.size == len(names) and have.any():
+                out[f][i, have] = vals[idx[have]]
+    return out
+
+
+def joint_errors(runner, run, truth, settle: float) -> tuple[dict[str, Any] | None, str | None]:
+    """({"per_joint": {joint: error_stats of its fields}, "all_joints": error_stats of every
+    joint's errors together, ...}, None), or (None, why there are none)."""
+    t_truth, msgs = truth
+    if not len(msgs):
+        return None, "no ground truth: the truth topic has no messages"
+    plan = OutputPlan(runner)
+    cols = _truth_columns(msgs, plan.names)
+    pos, vel, eff = plan.fields(run.est_x, run.est_w)
+    est = {"position": pos, "velocity": vel, "effort": eff}
+    fields = [f for f in FIELDS if est[f].ndim == 2 and np.isfinite(cols[f]).any()]
+    if not fields or not run.est_t.size:
+        return None, "no estimate and truth field in common"
+    per_joint: dict[str, Any] = {}
+    all_err, all_settled = [], []
+    matched = unmatched = 0
+    for j, name in enumerate(plan.names):
+        rows = np.flatnonzero(run.est_ok[:, j])
+        truth_j = np.column_stack([cols[f][:, j] for f in fields])
+        good = np.all(np.isfinite(truth_j), axis=1)
+        mask, at = M.match_truth(run.est_t[rows], t_truth[good], truth_j[good])
+        rows = rows[mask]
+        err = at[mask] - np.column_stack([est[f][rows, j] for f in fields])
+        settled = run.est_conv[rows, j, 0] >= settle - 1e-9
+        per_joint[name] = M.error_stats(err, fields, settled)
+        per_joint[name]["matched_samples"] = int(rows.size)
+        matched += int(rows.size)
+        unmatched += int((~mask).sum())
+        all_err.append(err)
+        all_settled.append(settled)
+    overall = M.error_stats(np.concatenate(all_err), fields, np.concatenate(all_settled))
+    return {"fields": fields, "per_joint": per_joint, "all_joints": overall,
+            "matched_samples": matched, "unmatched_samples": unmatched,
+            "definition": "error = truth - estimate per joint and field (the JointState the "
+                          "replay publishes: position, velocity, effort), the truth JointState "
+                          "mapped by joint name and taken at each estimate's stamp (exact ns "
+                          "match, else linear interpolation); 'all_joints' pools every joint's "
+                          "errors; 'after_settle' as in 'errors'"}, None
+
