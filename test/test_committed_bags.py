@@ -179,8 +179,47 @@ EXAMPLE_BOUNDS = {
 }
 
 
+#: the arm (per-joint replays, bags from fto-simulate --urdf: the URDF's rigid-body dynamics,
+#: 1e-5 rad encoder noise quantised to 2^-18 rad): (position, velocity) bounds on the largest
+#: |truth - estimate| over every joint after the settle time, 1.5x what was measured
+#: (2026-12-02; measured per pair in the comment)
+ARM_BOUNDS = {
+    ('arm7_contact_link6', 'arm7_acquire_track'): (0.00018, 0.32),  # 0.000118, 0.211
+    ('arm7_contact_link6', 'arm7_ekf'): (6.3e-05, 0.071),  # 4.19e-05, 0.0473
+    ('arm7_contact_link6', 'arm7_hosm'): (5.9e-05, 0.055),  # 3.88e-05, 0.0364
+    ('arm7_contact_link6', 'arm7_luenberger'): (7.8e-05, 0.091),  # 5.17e-05, 0.0603
+    ('arm7_contact_link6', 'arm7_single_delay'): (6.5e-05, 0.41),  # 4.32e-05, 0.269
+    ('arm7_contact_tool', 'arm7_acquire_track'): (0.00029, 0.56),  # 0.000189, 0.373
+    ('arm7_contact_tool', 'arm7_ekf'): (6.4e-05, 0.099),  # 4.24e-05, 0.0656
+    ('arm7_contact_tool', 'arm7_hosm'): (6.5e-05, 0.056),  # 4.28e-05, 0.037
+    ('arm7_contact_tool', 'arm7_luenberger'): (9.9e-05, 0.12),  # 6.55e-05, 0.0752
+    ('arm7_contact_tool', 'arm7_single_delay'): (6.7e-05, 0.58),  # 4.42e-05, 0.38
+    ('arm7_free', 'arm7_acquire_track'): (0.00019, 0.33),  # 0.000121, 0.214
+    ('arm7_free', 'arm7_ekf'): (6e-05, 0.068),  # 3.97e-05, 0.0452
+    ('arm7_free', 'arm7_hosm'): (6.2e-05, 0.054),  # 4.09e-05, 0.036
+    ('arm7_free', 'arm7_luenberger'): (7.9e-05, 0.079),  # 5.21e-05, 0.0522
+    ('arm7_free', 'arm7_single_delay'): (6.7e-05, 0.33),  # 4.41e-05, 0.215
+}
+ARM = [p for p in EXAMPLES if (p.bag.name, p.config.stem) in ARM_BOUNDS]
+EXAMPLES = [p for p in EXAMPLES if p not in ARM]
+
+
 def test_every_example_pair_has_a_bound():
     assert {(p.bag.name, p.config.stem) for p in EXAMPLES} == set(EXAMPLE_BOUNDS)
+    assert {(p.bag.name, p.config.stem) for p in ARM} == set(ARM_BOUNDS)
+
+
+@pytest.mark.parametrize("pair", ARM, ids=lambda p: f"{p.bag.name}-{p.config.stem}")
+def test_arm_replays_within_bounds_on_every_joint(pair, tmp_path):
+    bound = ARM_BOUNDS[(pair.bag.name, pair.config.stem)]
+    m = replay(pair.bag, pair.params, tmp_path / "out", progress=False, plot=False)
+    assert m["samples_rejected"] == 0 and m["samples_accepted"] == m["sample_count"] > 1000
+    joints = m["joint_errors"]["per_joint"]
+    assert len(joints) == 7
+    for name, e in joints.items():
+        got = (e["per_state"]["position"]["max_abs_after_settle"],
+               e["per_state"]["velocity"]["max_abs_after_settle"])
+        assert got[0] <= bound[0] and got[1] <= bound[1], (name, got, bound)
 
 
 @pytest.mark.parametrize("pair", EXAMPLES, ids=lambda p: f"{p.bag.name}-{p.config.stem}")
