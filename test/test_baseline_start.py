@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from faultkit import committed_configs, runner_for, stream_for
-from fto_ros.observers.base import resolve
+from fto_ros.core.params import resolve
 from fto_ros.observers.luenberger import LuenbergerObserver
 from fto_ros.runner import Output
 
