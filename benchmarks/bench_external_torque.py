@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import time
 from pathlib import Path
@@ -37,75 +36,12 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from fto_ros.cli.simulate_arm import read_arm_bag  # noqa: E402
+from fto_ros.cli.torque_table import BAGS, BOUND, JOINTS, evaluate  # noqa: E402
 from fto_ros.models.arm import ArmSettings, simulate_arm  # noqa: E402
 from fto_ros.rigid import load_model  # noqa: E402
-from fto_ros.rigid.collision import CollisionDetector, detection_time  # noqa: E402
-from fto_ros.rigid.external_torque import (FiniteDifference, MomentumObserver,  # noqa: E402
-                                           WindowEstimator, run_over)
+from fto_ros.rigid.external_torque import FiniteDifference, MomentumObserver, WindowEstimator  # noqa: E402
 
-BAGS = ["arm7_contact_link6", "arm7_contact_tool", "arm7_free"]
 URDF = ROOT / "urdf" / "arm7.urdf"
-JOINTS = [f"joint_a{i}" for i in range(1, 8)]
-BOUND = 1e-2
-CALIBRATION = (0.5, 2.5)
-
-
-def contact_intervals(run):
-    on = run.contact[:, 0] > 0
-    edges = np.flatnonzero(np.diff(on.astype(int)))
-    starts = [run.t[i + 1] for i in edges if not on[i]]
-    ends = [run.t[i + 1] for i in edges if on[i]]
-    return list(zip(starts, ends))
-
-
-def evaluate(est, run):
-    E, V = run_over(est, run.t, run.q_measured, run.tau)
-    t = run.t
-    contacts = contact_intervals(run)
-    free = t >= 0.5
-    for a, b in contacts:
-        free &= ~((t >= a) & (t < b + 0.3))
-    det = CollisionDetector(run.q.shape[1], rate=1000.0, false_alarms_per_hour=BOUND,
-                            calibration=CALIBRATION[1] - CALIBRATION[0])
-    alarms = []
-    for k in np.flatnonzero(t >= CALIBRATION[0]):
-        if np.all(np.isfinite(E[k])):
-            scale = np.linalg.norm(est.model.mass_matrix(run.q_measured[k]), axis=1)
-            ev = det.update(t[k], E[k], scale)
-            if ev is not None:
-                alarms.append(ev)
-    delays, settling, per_joint = [], [], []
-    false_alarms = sum(1 for ev in alarms if not any(a <= ev.t < b + 0.3 for a, b in contacts))
-    for a, b in contacts:
-        hits = [ev.t for ev in alarms if a <= ev.t < b + 0.3]
-        delays.append((min(hits) - a) * 1e3 if hits else math.inf)
-        if hasattr(est, "step_response"):           # per joint: measured and guaranteed
-            k0 = int(np.searchsorted(t, a))
-            gain = np.linalg.norm(est.model.mass_matrix(run.q_measured[k0]), axis=1)
-            peak = np.abs(run.tau_ext[(t >= a) & (t < b)]).max(axis=0)
-            for i in np.flatnonzero(peak > 1e-6):
-                fired = [ev.t for ev in alarms if a <= ev.t < b + 0.3 and i in ev.joints]
-                per_joint.append({
-                    "joint": int(i), "peak": float(peak[i]),
-                    "threshold": float(det.threshold[i] * gain[i]),
-                    "guaranteed_ms": 1e3 * detection_time(est.step_response, peak[i],
-                                                          det.threshold[i] * gain[i],
-                                                          det.sigma[i] * gain[i]),
-                    "measured_ms": (min(fired) - a) * 1e3 if fired else math.inf})
-        inside = (t >= a) & (t < b)
-        j = int(np.argmax(np.abs(run.tau_ext[inside]).max(axis=0)))
-        bad = np.flatnonzero(inside & ~(np.abs(E[:, j] - run.tau_ext[:, j])
-                                        <= 0.1 * np.abs(run.tau_ext[inside, j]).max()))
-        settling.append((t[bad[-1] + 1] - a) * 1e3 if bad.size and t[bad[-1]] < b - 2e-3
-                        else (0.0 if not bad.size else math.inf))
-    err = E - run.tau_ext
-    rms = np.sqrt(np.nanmean(err[free] ** 2, axis=0))
-    return {"velocity_rms": float(np.sqrt(np.mean((V - run.v)[t >= 0.5] ** 2))),
-            "free_rms_joints": rms.tolist(), "free_rms_worst": float(rms.max()),
-            "max_error": float(np.nanmax(np.abs(err[free]))),
-            "delays_ms": delays, "settling_ms": settling, "false_alarms": false_alarms,
-            "per_joint": per_joint,
-            "sigma": det.sigma.tolist()}
 
 
 def configs(model):
@@ -133,7 +69,7 @@ def main(argv=None):
     for name, make in makers.items():
         results[name] = {b: evaluate(make(), run) for b, run in runs.items()}
     print(f"(bags: {time.perf_counter() - started:.0f} s)", file=sys.stderr)
-    contact_bags = BAGS[:2]
+    contact_bags = list(BAGS[:2])
 
     def summary(name):
         r = results[name]

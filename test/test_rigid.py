@@ -334,3 +334,19 @@ def test_fto_simulate_urdf_refuses_bad_arguments_in_one_line(tmp_path, capsys, a
                  *args]) == 2
     err = capsys.readouterr().err.strip()
     assert words in err and "\n" not in err and not (tmp_path / "x").exists()
+
+
+def test_the_main_jobs_torque_table_compares_the_three_estimators(tmp_path):
+    """fto-report's arm table (cli/torque_table.py) on the contact-free bag: a row per
+    estimator, this package's window quieter in free motion than the momentum observer,
+    no false alarm."""
+    from fto_ros.cli.torque_table import MAIN_JOB, table
+    (tmp_path / "arm7_free").symlink_to(ROOT / "bags" / "arm7_free")
+    text = table(tmp_path, ROOT / "urdf" / "arm7.urdf")
+    rows = [line.split(" | ") for line in text.splitlines()[2:]]
+    assert [r[0].lstrip("| ") for r in rows] == list(MAIN_JOB)
+    rms = {r[0].lstrip("| "): float(r[3]) for r in rows}
+    window, gmo = list(MAIN_JOB)[:2]
+    assert rms[window] < 0.5 * rms[gmo]
+    assert all(r[6].rstrip(" |") == "0" for r in rows)
+    assert table(tmp_path / "none", ROOT / "urdf" / "arm7.urdf") is None
