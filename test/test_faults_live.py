@@ -263,7 +263,11 @@ def test_a_second_source_on_the_float_topics_is_rejected(tmp_path):
         received = _count(st, "messages received: measured_output")
         second = _count(st, "rejected: second_source")
         assert second > 0 and _count(st, "rejected: input_second_source") > 0, st["values"]
-        assert received - (_count(st, "samples accepted") + second) in (0, 1), st["values"]
+        # a measurement that overtakes the very first input (both are sent back to back) is
+        # refused as missing_input: the only other reason a sample may have
+        early = _count(st, "rejected: missing_input")
+        assert early <= 5, st["values"]
+        assert received - (_count(st, "samples accepted") + second + early) in (0, 1), st["values"]
         assert not any(k.startswith("restarts:") for k in st["values"]), st["values"]
         assert float(st["values"]["output residual"]) < 1e-2, st["values"]   # B's is 1 rad
         assert st["values"]["publishers: measured_output"] == "2"
