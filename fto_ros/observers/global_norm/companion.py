@@ -279,6 +279,19 @@ def companion_step(c, E, x, h, r0, r1, r2, out, work):
 
 
 @jit
+def gain_forcing(G, ya, yb, yc, v0, r0, r1, r2):
+    """The forcing of x' = A x + G y(t) + e_n v under the output polynomial
+    y = ya + yb s + yc s^2 (output_polynomial): r_q = G y_q, the model term v0 added to the
+    last state's constant part (the shape companion_step takes)."""
+    dim = G.shape[0]
+    for i in range(dim):
+        r0[i] = G[i] * ya
+        r1[i] = G[i] * yb
+        r2[i] = G[i] * yc
+    r0[dim - 1] += v0
+
+
+@jit
 def output_polynomial(has_prev2, y_prev2, h_prev, y0, y1, h, quadratic):
     """(a, b, c) with y(s) = a + b s + c s^2 on [0, h] through y0, y1 (and y_prev2 at
     -h_prev when quadratic and has_prev2)."""

@@ -33,7 +33,7 @@ from ...core.jit import jit
 from ...core.linalg import matvec
 from ...core.reasons import CODE
 from ..kernel import C_HEADER, HEADER, HEALTH, IC_HEADER, RESIDUAL
-from .companion import companion_expm, companion_step, norm_estimator_step, output_polynomial
+from .companion import companion_expm, companion_step, gain_forcing, norm_estimator_step, output_polynomial
 
 M, DIM, NIN, REDUCED, QUAD, SCRATCH, MAPPED = range(IC_HEADER, IC_HEADER + 7)
 W0 = C_HEADER
@@ -181,11 +181,7 @@ def _step(st, nx, c, ic, wk, h, y, u, models):
     r0 = _scratch(ic, wk, 6)
     r1 = _scratch(ic, wk, 7)
     r2 = _scratch(ic, wk, 8)
-    for i in range(dim):
-        r0[i] = G[i] * ya
-        r1[i] = G[i] * yb
-        r2[i] = G[i] * yc
-    r0[dim - 1] += v0
+    gain_forcing(G, ya, yb, yc, v0, r0, r1, r2)
     xp = _scratch(ic, wk, 9)
     work = _scratch(ic, wk, 12)
     companion_step(k, E, xs, h, r0, r1, r2, xp, work)

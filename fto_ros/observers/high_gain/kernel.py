@@ -29,7 +29,7 @@ from ...core.jit import jit
 from ...core.linalg import matvec
 from ...core.reasons import CODE
 from ...core.step_cache import cache_claim, cache_find
-from ..global_norm.companion import companion_expm, companion_step, output_polynomial
+from ..global_norm.companion import companion_expm, companion_step, gain_forcing, output_polynomial
 from ..kernel import C_HEADER, HEADER, IC_HEADER, RESIDUAL
 
 M_, NIN, ON_EST, QUAD, CACHE, SLOTS, SCRATCH, MAPPED = range(IC_HEADER, IC_HEADER + 8)
@@ -150,11 +150,7 @@ def _step(st, nx, c, ic, wk, h, y, u, models):
     r0 = _scratch(ic, wk, 2)
     r1 = _scratch(ic, wk, 3)
     r2 = _scratch(ic, wk, 4)
-    for i in range(m):
-        r0[i] = G[i] * ya
-        r1[i] = G[i] * yb
-        r2[i] = G[i] * yc
-    r0[m - 1] += v0
+    gain_forcing(G, ya, yb, yc, v0, r0, r1, r2)
     xp = _scratch(ic, wk, 5)
     work = _scratch(ic, wk, 8)
     companion_step(cc, E, x0, h, r0, r1, r2, xp, work)
