@@ -40,7 +40,8 @@ setup(
         *_share('urdf', '*.urdf'),
     ],
     install_requires=_requirements(),
-    extras_require={'test': ['pytest>=7', 'hypothesis>=6', 'pytest-xdist>=3.5']},
+    extras_require={'test': ['pytest>=7', 'hypothesis>=6', 'pytest-xdist>=3.5',
+                              'pytest-timeout>=2.2']},
     entry_points={
         'console_scripts': [
             'fto-observer = fto_ros.nodes.start:observer',

@@ -132,19 +132,29 @@ def test_sourced_install_is_what_runs(workspace):
 
 
 def test_installed_observer_node_starts(workspace):
-    """`lib/fto_ros/observer_node --ros-args --params-file ...` keeps running (spinning)
-    for 3 s, then stops cleanly on Ctrl-C (SIGINT) without a traceback."""
+    """`lib/fto_ros/observer_node --ros-args --params-file ...` comes up (its observer's
+    log line), keeps running (spinning) for 3 s, then stops cleanly on Ctrl-C (SIGINT)
+    without a traceback.  The signal waits for the log line: sent while the interpreter
+    still starts, before the node's own handler is in place, it is Python's to take, and
+    a process started with SIGINT ignored (a CI runner's background job) keeps ignoring it."""
     if not (REPO / PKG / 'nodes' / 'observer_node.py').is_file():
         pytest.skip('fto_ros/nodes/observer_node.py does not exist yet')
     share = workspace / 'install' / PKG / 'share' / PKG / 'config'
     # the DC-motor plant file, then a tuning file (as several --params-file merge)
     params = [share / 'dc_motor_plant.yaml', share / 'dc_motor_single_delay.yaml']
     exe = workspace / 'install' / PKG / 'lib' / PKG / 'observer_node'
-    with tempfile.TemporaryFile(mode='w+') as log:  # a file: a chatty node cannot block on a pipe
+    with tempfile.TemporaryFile(mode='a+') as log:  # a file: a chatty node cannot block on a pipe;
+        # 'a+' (O_APPEND): the node's writes go to the end while this test seeks and reads
         proc = _sourced_run(workspace, [str(exe), '--ros-args', '--params-file', str(params[0]),
                                         '--params-file', str(params[1])],
                             stdout=log, stderr=subprocess.STDOUT, text=True)
         try:
+            up = time.monotonic() + 300.0          # a cold compile cache on a loaded machine
+            while time.monotonic() < up and proc.poll() is None:
+                log.seek(0)
+                if 'observer: ' in log.read():
+                    break
+                time.sleep(0.2)
             deadline = time.monotonic() + 3.0
             while time.monotonic() < deadline and proc.poll() is None:
                 time.sleep(0.1)

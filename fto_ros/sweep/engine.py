@@ -74,18 +74,19 @@ def where() -> str:
 
 
 # ----------------------------------------------------------------- local worker processes
-_started = None  # in a local worker: the queue that hears of every task it starts
+_started = None  # in a local worker: a flag per task, set as the task starts
 
 
-def _init_local_worker(queue) -> None:
+def _init_local_worker(flags) -> None:
     global _started
-    _started = queue
+    _started = flags
 
 
 def _tracked(fn: Callable, index: int, args: tuple):
     """Run ``fn(*args)`` in a local worker, first telling the parent that ``index`` started
     (after a worker died, the tasks that were running can then be told from the queued)."""
-    _started.put(index)
+    _started[index] = 1   # a byte in shared memory: a worker killed at any moment leaves no
+    #                       half-written message (nor a held lock) behind
     return fn(*args)
 
 
@@ -246,13 +247,14 @@ class Engine:
     def _round(ctx, fn, arglists, todo, workers, finish) -> set[int]:
         """Run ``todo`` on a new pool of ``workers`` processes until all are done or a worker
         dies (the pool is then broken); ``finish`` each result.  The indices that started."""
-        queue = ctx.SimpleQueue()
-        started: set[int] = set()
+        flags = ctx.RawArray("B", len(arglists))
+        # the pool's workers are the children this process starts from here on
+        others = set(multiprocessing.active_children())
         pool = ProcessPoolExecutor(min(workers, len(todo)), mp_context=ctx,
-                                   initializer=_init_local_worker, initargs=(queue,))
+                                   initializer=_init_local_worker, initargs=(flags,))
+        broken = False
         try:
             futures: dict = {}
-            broken = False
             for i in todo:
                 try:
                     futures[pool.submit(_tracked, fn, i, arglists[i])] = i
@@ -268,13 +270,14 @@ class Engine:
                         broken = True
                     else:
                         finish(futures[f], f.result() if err is None else _lost(err))
-                while not queue.empty():
-                    started.add(queue.get())
         finally:
+            if broken:
+                # CPython 3.11's broken pool joins its surviving workers, which wait on the
+                # call queue for ever (a sweep that hung in 1 of 3 worker deaths): end them
+                for p in set(multiprocessing.active_children()) - others:
+                    p.kill()
             pool.shutdown(wait=True, cancel_futures=True)
-        while not queue.empty():
-            started.add(queue.get())
-        return started
+        return {i for i in todo if flags[i]}
 
     def _map_dask(self, fn, arglists, order, done) -> list:
         from distributed import as_completed
