@@ -263,15 +263,23 @@ def test_a_second_source_on_the_float_topics_is_rejected(tmp_path):
         received = _count(st, "messages received: measured_output")
         second = _count(st, "rejected: second_source")
         assert second > 0 and _count(st, "rejected: input_second_source") > 0, st["values"]
-        # a measurement that overtakes the very first input (both are sent back to back) is
-        # refused as missing_input: the only other reason a sample may have
-        early = _count(st, "rejected: missing_input")
-        assert early <= 5, st["values"]
-        # at most one in flight at the status; in 2 of 4 fresh-clone runs (2026-12-02) 2 of
-        # 3502 measurements were neither accepted nor counted as rejected (unexplained, open:
-        # the closing note of that stop), hence 2
-        assert received - (_count(st, "samples accepted") + second + early) in (0, 1, 2), \
+        # every measurement is accepted or rejected with a reason (at most one in flight at
+        # the status): the reasons of the measurements are those not of the input topic
+        reasons = {k[len("rejected: "):]: int(v) for k, v in st["values"].items()
+                   if k.startswith("rejected: ") and not k.startswith("rejected: input_")}
+        print("float topics, two sources: measurement rejections", reasons)
+        assert received - (_count(st, "samples accepted") + sum(reasons.values())) in (0, 1), \
             st["values"]
+        # besides the second source's, a few are timing (these topics carry no stamp: the
+        # receipt time is the sample's): a measurement that overtakes the very first input
+        # (sent back to back) is missing_input; one delivered late sits off the estimate by
+        # its delay times the velocity and the gate calls it an outlier (4 in 3,502 seen,
+        # 2026-12-02: the "2 measurements neither accepted nor rejected" of the previous
+        # stop were these, which the test did not add up); two taken in one callback batch
+        # can be too close
+        others = {k: v for k, v in reasons.items() if k != "second_source"}
+        assert set(others) <= {"missing_input", "outlier", "stamp_too_close", "repeated_stamp"} \
+            and sum(others.values()) <= 10, st["values"]
         assert not any(k.startswith("restarts:") for k in st["values"]), st["values"]
         assert float(st["values"]["output residual"]) < 1e-2, st["values"]   # B's is 1 rad
         assert st["values"]["publishers: measured_output"] == "2"
