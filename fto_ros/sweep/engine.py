@@ -273,7 +273,7 @@ class Engine:
         finally:
             if broken:
                 # CPython 3.11's broken pool joins its surviving workers, which wait on the
-                # call queue for ever (a sweep that hung in 1 of 3 worker deaths): end them
+                # call queue for ever (a sweep hung within 1-25 worker deaths): end them
                 for p in set(multiprocessing.active_children()) - others:
                     p.kill()
             pool.shutdown(wait=True, cancel_futures=True)
