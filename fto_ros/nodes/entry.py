@@ -1,7 +1,14 @@
-"""The command line of the observer nodes (plain and managed): usage, the params-file
-check done before rcl parses them (with the replay tools' reader, so both refuse the
-same files with the same line), start-up and the exit status (0 on shutdown, 2 on a bad
-parameter or argument: one log line names it)."""
+"""The command line of the observer nodes (plain and managed) and of the external-torque
+node: usage, the params-file check done before rcl parses them (with the replay tools'
+reader, so both refuse the same files with the same line), start-up and the exit status
+(0 on shutdown, 2 on a bad parameter or argument: one log line names it).
+
+A node that would refuse its parameters at start-up (the plain observer, the managed one
+with ``autostart``, the external-torque node unless ``autostart`` is false) has its
+configuration built first from the same parameters (its params files' blocks for its name,
+then the ``-p`` values, read as rcl reads them): a refusal (a bad value, an unreadable URDF)
+is printed before ``rclpy.init``, so before any DDS participant exists and before any
+middleware line (:func:`preflight`)."""
 from __future__ import annotations
 
 import gc
@@ -17,7 +24,7 @@ from rclpy.executors import ExternalShutdownException
 
 from ..core.errors import ConfigError
 from ..observers import REGISTRY
-from ..runner.params_file import load_params_file
+from ..runner.params_file import load_params_file, parse_override
 from ..runner.runner import CONVERGENCE_FIELDS
 from ..runner.settings import SETTINGS
 from .fast_io import create_executor, spin
@@ -121,6 +128,68 @@ def command_line_params_win(args: list[str], folder: str) -> list[str]:
     return args + ["--ros-args", "--params-file", path]
 
 
+def node_parameters(args: list[str]) -> dict | None:
+    """The parameters rcl will give the node, as the replay tools read them: each
+    ``--params-file``'s blocks for the node's name in order, then every ``-p NAME:=VALUE``
+    (which win, :func:`command_line_params_win`).  None when the command line has what this
+    reading does not follow (a ``-p`` naming a node, a value rcl reads its own way): rcl and
+    the node then decide, as before."""
+    fqn, flat, overrides, in_ros = node_fqn(args), {}, {}, False
+    for i, a in enumerate(args):
+        if a == "--ros-args":
+            in_ros = True
+        elif a == "--":
+            in_ros = False
+        elif in_ros and a == "--params-file" and i + 1 < len(args):
+            flat.update(load_params_file(args[i + 1], fqn))
+        elif in_ros and a in ("-p", "--param") and i + 1 < len(args):
+            name, sep, value = args[i + 1].partition(":=")
+            if not sep or not name or ":" in name:
+                return None
+            try:
+                overrides.update([parse_override(f"{name}={value}")])
+            except ConfigError:
+                return None
+    flat.update(overrides)
+    return flat
+
+
+def _autostart(flat: dict, default: bool) -> bool:
+    value = flat.get("autostart", default)
+    return value if isinstance(value, bool) else default
+
+
+def preflight(exe: str, args: list[str]) -> None:
+    """Build the configuration the node ``exe`` would build at start-up from ``args``:
+    ConfigError naming the parameter if it would refuse it.  Nothing for a node that
+    starts unconfigured (a managed node without autostart: its configure transition
+    reports), nor where :func:`node_parameters` leaves the reading to rcl."""
+    flat = node_parameters(args)
+    if flat is None:
+        return
+    if exe == "external_torque_node":
+        if not _autostart(flat, True):
+            return
+        from ..runner.torque_settings import build
+        try:
+            build(flat)
+        except ConfigError:
+            raise
+        except Exception as exc:  # noqa: BLE001  as the node's configure says it
+            raise ConfigError("plant.urdf", f"cannot build the model: {type(exc).__name__}: "
+                              + " ".join(str(exc).split())[:300]) from None
+        return
+    if exe == "managed_observer_node" and not _autostart(flat, False):
+        return
+    from ..runner import Runner
+    try:
+        Runner({k: v for k, v in flat.items() if not k.startswith("qos_overrides.")})
+    except ConfigError:
+        raise
+    except Exception:  # noqa: BLE001  not a refusal: the node's own start reports it
+        return
+
+
 def _error_line(text: str) -> None:
     rclpy.logging.get_logger(NODE_NAME).error(text)
 
@@ -135,6 +204,7 @@ def run(make_node: Callable, prog: str, exe: str, managed: bool,
         return 0
     try:
         precheck_params_files(args)
+        preflight(exe, args)         # a refusal before rclpy.init: no DDS participant yet
     except ConfigError as exc:
         _error_line(f"fto_ros: bad parameter: {exc}")
         return 2

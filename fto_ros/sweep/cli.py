@@ -241,7 +241,9 @@ def _sweep(args, progress) -> int:
         if not args.no_plots:
             plots.write_all(out, axes, rows)
     except OSError as err:
-        return _fail(1, f"cannot write the results in {out}: {err}")
+        from ..core.output_dir import abandon
+        what = abandon(out, "sweep", f"{err.strerror or err}", keep=True)
+        return _fail(1, f"cannot write the results in {out}: {err.strerror or err}; {what}")
     print(text)
     print(f"wrote {out / 'results.csv'}, {out / 'summary.txt'}"
           + ("" if args.no_plots else f" and the figures in {out}"))
