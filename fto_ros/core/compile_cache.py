@@ -140,7 +140,10 @@ class PrivateCache(_nc.FunctionCache):
                                         self._impl.locator.get_source_stamp())
 
     def _usable(self) -> bool:
-        return PC.folder(self._impl.locator._sub, top=self._impl.locator._top) is not None
+        """The function's folder and every folder up to the cache root, checked now."""
+        locator = self._impl.locator
+        return numba_folder() == locator._top and \
+            PC.folder(locator._sub, top=locator._top) is not None
 
     def load_overload(self, sig, target_context):
         if not self._usable():

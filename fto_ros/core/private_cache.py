@@ -159,7 +159,10 @@ def folder(*parts: str, top: Path | None = None) -> Path | None:
             os.makedirs(base.parent, mode=0o700, exist_ok=True)
             _mkdir(base)
         why = why_not_private(base, base) if os.path.lexists(base) else None
-        if why is None and st.writes:       # nothing is made inside a refused root
+        if why is not None:                 # nothing is made inside a refused root
+            _refuse(base, why)
+            return None
+        if st.writes:
             for part in parts:
                 made = made / part
                 _mkdir(made)

@@ -43,7 +43,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _scheduler(text: str) -> str:
-    from .engine import SCHEMES, EngineError, split_address
+    from .cluster import SCHEMES, EngineError, split_address
     if not re.fullmatch(r"[a-z][a-z0-9+.-]*://\S+", text):
         raise argparse.ArgumentTypeError(f"expected a Dask scheduler address such as "
                                          f"tcp://HOST:8786, got {text!r}")

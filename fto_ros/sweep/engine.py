@@ -20,18 +20,15 @@ finish is then a short one, which keeps every worker busy to the end).
   a new pool.
 - ``scheduler``: a :class:`distributed.Client` connected to the scheduler at that address;
   each task is one ``Client.submit`` (Dask schedules, retries on worker loss and moves the
-  data).  Before anything is submitted the engine checks that the scheduler's port answers
-  (a plain TCP connection, within the connect timeout), that the cluster has workers, that
-  they can import ``fto_ros``, and (:meth:`Engine.missing_paths`) that they see the files.
-  Every failure there is one :class:`EngineError` line.  A scheduler lost during the map
+  data).  Before anything is submitted the engine reaches the scheduler (sweep/cluster.py:
+  every failure one :class:`EngineError` line within the connect timeout) and checks that
+  the cluster has workers, that they can import ``fto_ros``, and
+  (:meth:`Engine.missing_paths`) that they see the files.  A scheduler lost during the map
   ends it at once: the tasks not done are :class:`Lost`, and :attr:`Engine.lost` says why.
-  ``distributed``'s own log lines (reconnection attempts, tracebacks from its event loop) are
-  not printed (``FTO_DEBUG=1`` keeps them): the engine reports what happened, in one line.
 """
 from __future__ import annotations
 
 import asyncio
-import logging
 import multiprocessing
 import os
 import socket
@@ -41,22 +38,14 @@ from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
 from ..core.command_line import one_line
-from ..core.errors import FtoRosError
+from .cluster import EngineError, client, quiet_dask, reach, split_address
 
 #: seconds to wait for the scheduler to answer, and for a cluster to have a worker (the
 #: default of fto-sweep's --connect-timeout)
 CONNECT_TIMEOUT_S = 10.0
-#: the address schemes of a Dask scheduler reached over the network
-SCHEMES = ("tcp", "tls", "ws", "wss")
-#: loggers of distributed and the libraries under it, whose lines the engine replaces
-_DASK_LOGGERS = ("distributed", "tornado", "asyncio")
+
 #: modules a forkserver imports once, before it forks the local workers
 PRELOAD = ["fto_ros.replay.replay", "fto_ros.sweep.tasks"]
-
-
-class EngineError(FtoRosError):
-    """The engine cannot run anything (scheduler unreachable, no worker, workers without
-    fto_ros, files the workers cannot see).  One line."""
 
 
 @dataclass(frozen=True)
@@ -123,82 +112,6 @@ def prestart(workers: int | None, scheduler: str | None = None) -> None:
         forkserver.ensure_running()
 
 
-def split_address(address: str) -> tuple[str, str, int]:
-    """``(scheme, host, port)`` of a scheduler address ``scheme://host:port``; EngineError for
-    anything else (an in-process or unknown scheme, no host, a port out of range)."""
-    from urllib.parse import urlsplit
-    try:
-        parts = urlsplit(address)
-        port = parts.port
-    except ValueError as err:
-        raise EngineError(f"bad Dask scheduler address {address!r}: {one_line(err)}") from None
-    if parts.scheme not in SCHEMES:
-        raise EngineError(f"bad Dask scheduler address {address!r}: the scheme must be one of "
-                          f"{', '.join(SCHEMES)}")
-    if not parts.hostname or port is None or not 0 < port < 65536 or parts.path not in ("", "/"):
-        raise EngineError(f"bad Dask scheduler address {address!r}: expected "
-                          f"{parts.scheme}://HOST:PORT")
-    return parts.scheme, parts.hostname, port
-
-
-def _quiet_dask() -> None:
-    """distributed's log lines (and tornado's, asyncio's, which carry its tracebacks) are
-    dropped for the rest of the process, unless FTO_DEBUG is set."""
-    if os.environ.get("FTO_DEBUG"):
-        return
-    import distributed  # noqa: F401  (its import configures its loggers: after that)
-    names = [n for n in list(logging.root.manager.loggerDict)
-             if any(n == p or n.startswith(p + ".") for p in _DASK_LOGGERS)]
-    for name in {*_DASK_LOGGERS, *names}:
-        log = logging.getLogger(name)
-        log.handlers = [logging.NullHandler()]
-        log.propagate = False
-
-
-def _handshake(address: str, timeout: float) -> None:
-    """distributed's own connection handshake with ``address``, bounded by ``timeout``: a
-    port that accepts and says nothing (no scheduler there) fails here, where the Client
-    would wait for ever."""
-    from distributed.comm import connect
-    from distributed.security import Security
-
-    async def probe():
-        comm = await connect(address, timeout=timeout,
-                             **Security().get_connection_args("client"))
-        await comm.close()
-    asyncio.run(asyncio.wait_for(probe(), timeout))
-
-
-def _client(address: str, timeout: float):
-    """A distributed Client connected to ``address``, or EngineError (one line) within about
-    ``timeout`` s: the handshake first, then the Client, made in a helper thread that is
-    given up on (and left to the interpreter's exit) if it does not finish in time."""
-    import threading
-    try:
-        _handshake(address, timeout)
-    except (Exception, asyncio.CancelledError) as err:  # noqa: BLE001
-        why = "no answer" if isinstance(err, (TimeoutError, asyncio.TimeoutError)) \
-            else one_line(err) or type(err).__name__
-        raise EngineError(f"no Dask scheduler answers at {address}: {why} (connect timeout "
-                          f"{timeout:g} s)") from None
-    from distributed import Client
-    box: dict = {}
-
-    def make() -> None:
-        try:
-            box["client"] = Client(address, timeout=timeout, set_as_default=False)
-        except BaseException as err:  # noqa: BLE001  reported by the caller
-            box["error"] = err
-    helper = threading.Thread(target=make, name="fto-dask-connect", daemon=True)
-    helper.start()
-    helper.join(2 * timeout + 5)
-    if "client" in box:
-        return box["client"]
-    why = one_line(box["error"]) or type(box["error"]).__name__ if "error" in box else \
-        f"no answer within {2 * timeout + 5:g} s"
-    raise EngineError(f"cannot connect to the Dask scheduler at {address}: {why}")
-
-
 def _missing(paths: Sequence[str]) -> list[str]:
     """The paths this process cannot see (run on every Dask worker: a worker without fto_ros
     cannot even load this function)."""
@@ -241,13 +154,13 @@ class Engine:
         address, timeout = self.scheduler, self.connect_timeout
         _scheme, host, port = split_address(address)
         try:                     # refused, unreachable or unknown: one line within the timeout
-            socket.create_connection((host, port), timeout=timeout).close()
+            reach(host, port, timeout)
         except OSError as err:
             why = "timed out" if isinstance(err, TimeoutError) else (err.strerror or one_line(err))
             raise EngineError(f"cannot connect to the Dask scheduler at {address}: {why} "
                               f"(connect timeout {timeout:g} s)") from None
-        _quiet_dask()
-        self.client = _client(address, timeout)
+        quiet_dask()
+        self.client = client(address, timeout)
         try:
             self.client.wait_for_workers(1, timeout=timeout)
         except (OSError, TimeoutError) as err:
