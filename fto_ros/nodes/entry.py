@@ -15,7 +15,7 @@ import gc
 import os
 import sys
 import tempfile
-from typing import Callable
+from typing import Callable, Iterator
 
 import rclpy
 import rclpy.logging
@@ -84,17 +84,25 @@ def node_fqn(args: list[str]) -> str:
     return f"{ns}/{name}" if ns else name
 
 
-def precheck_params_files(args: list[str]) -> None:
-    """Check --params-file arguments before rcl parses them (its errors are opaque), with the
-    reader of the replay tools: both refuse the same files with the same line."""
+def ros_options(args: list[str]) -> Iterator[tuple[str, str]]:
+    """(option, value) of every ``--params-file``, ``-p`` and ``--param`` inside the
+    ``--ros-args ... [--]`` sections of ``args``, in order."""
     in_ros = False
     for i, a in enumerate(args):
         if a == "--ros-args":
             in_ros = True
         elif a == "--":
             in_ros = False
-        elif in_ros and a == "--params-file" and i + 1 < len(args):
-            load_params_file(args[i + 1], node_fqn(args))
+        elif in_ros and a in ("--params-file", "-p", "--param") and i + 1 < len(args):
+            yield a, args[i + 1]
+
+
+def precheck_params_files(args: list[str]) -> None:
+    """Check --params-file arguments before rcl parses them (its errors are opaque), with the
+    reader of the replay tools: both refuse the same files with the same line."""
+    for option, value in ros_options(args):
+        if option == "--params-file":
+            load_params_file(value, node_fqn(args))
 
 
 def command_line_params_win(args: list[str], folder: str) -> list[str]:
@@ -107,14 +115,10 @@ def command_line_params_win(args: list[str], folder: str) -> list[str]:
     entry) wins, but given after ``-p`` its block outranks the command line.  A node-specific
     entry written last always wins; rcl still parses the ``-p`` arguments themselves (and
     refuses a malformed one), and the values are the same text, read by the same parser."""
-    pairs, in_ros = [], False
-    for i, a in enumerate(args):
-        if a == "--ros-args":
-            in_ros = True
-        elif a == "--":
-            in_ros = False
-        elif in_ros and a in ("-p", "--param") and i + 1 < len(args):
-            name, sep, value = args[i + 1].partition(":=")
+    pairs = []
+    for option, text in ros_options(args):
+        if option != "--params-file":
+            name, sep, value = text.partition(":=")
             # (an empty value or a comment: rcl itself refuses or unsets it, left to it)
             if sep and name and value.strip() and not value.lstrip().startswith("#") \
                     and "\n" not in value:
@@ -134,22 +138,18 @@ def node_parameters(args: list[str]) -> dict | None:
     (which win, :func:`command_line_params_win`).  None when the command line has what this
     reading does not follow (a ``-p`` naming a node, a value rcl reads its own way): rcl and
     the node then decide, as before."""
-    fqn, flat, overrides, in_ros = node_fqn(args), {}, {}, False
-    for i, a in enumerate(args):
-        if a == "--ros-args":
-            in_ros = True
-        elif a == "--":
-            in_ros = False
-        elif in_ros and a == "--params-file" and i + 1 < len(args):
-            flat.update(load_params_file(args[i + 1], fqn))
-        elif in_ros and a in ("-p", "--param") and i + 1 < len(args):
-            name, sep, value = args[i + 1].partition(":=")
-            if not sep or not name or ":" in name:
-                return None
-            try:
-                overrides.update([parse_override(f"{name}={value}")])
-            except ConfigError:
-                return None
+    fqn, flat, overrides = node_fqn(args), {}, {}
+    for option, text in ros_options(args):
+        if option == "--params-file":
+            flat.update(load_params_file(text, fqn))
+            continue
+        name, sep, value = text.partition(":=")
+        if not sep or not name or ":" in name:
+            return None
+        try:
+            overrides.update([parse_override(f"{name}={value}")])
+        except ConfigError:
+            return None
     flat.update(overrides)
     return flat
 

@@ -17,32 +17,14 @@ REPO = Path(__file__).resolve().parents[2]
 CONFIG = REPO / "config"
 
 #: imported first by the command's process: the cache disk of $FTO_ROS_CACHE fails
-INJECT = '''
-import errno, os
-_ROOT, _CODE = os.environ["FTO_ROS_CACHE"], getattr(errno, os.environ["FAIL_WITH"])
-_open, _write, _mkdir = os.open, os.write, os.mkdir
-_ours = set()
-def _under(p):
-    return str(os.fspath(p)).startswith(_ROOT)
-def _fail(*where):
-    raise OSError(_CODE, os.strerror(_CODE), *where)
-def fake_open(path, flags, mode=0o777, *a, **k):
-    if _under(path) and flags & os.O_CREAT and _CODE == errno.EROFS:
-        _fail(str(path))
-    fd = _open(path, flags, mode, *a, **k)
-    if _under(path):
-        _ours.add(fd)
-    return fd
-def fake_write(fd, data):
-    if fd in _ours:
-        _fail()
-    return _write(fd, data)
-def fake_mkdir(path, mode=0o777, *a, **k):
-    if _under(path) and _CODE == errno.EROFS:
-        _fail(str(path))
-    return _mkdir(path, mode, *a, **k)
-os.open, os.write, os.mkdir = fake_open, fake_write, fake_mkdir
-'''
+INJECT = f"""
+import errno, os, sys
+sys.path.insert(0, {str(REPO / "test" / "unit" / "core")!r})
+from cache_helpers import failing_calls
+for name, fake in failing_calls(getattr(errno, os.environ["FAIL_WITH"]),
+                                os.environ["FTO_ROS_CACHE"]).items():
+    setattr(os, name, fake)
+"""
 
 
 def run_python(code: str, tmp_path: Path, timeout: float = 900, **env) -> subprocess.CompletedProcess:

@@ -60,9 +60,10 @@ def payload_source(marker: Path) -> str:
             "    return 0\n")
 
 
-def fail_writes(monkeypatch, code: int, root) -> None:
-    """A full disk (ENOSPC: the data does not fit) or a read-only one (EROFS: nothing may be
-    created), for paths under the cache root only."""
+def failing_calls(code: int, root) -> dict:
+    """``os.open``, ``os.write`` and ``os.mkdir`` of a full disk (ENOSPC: the data does not
+    fit) or a read-only one (EROFS: nothing may be created), for paths under ``root`` only
+    (the system tests install them in a command's process: test_cache_commands.py)."""
     real_open, real_write, real_mkdir = os.open, os.write, os.mkdir
     ours: set[int] = set()
 
@@ -86,6 +87,10 @@ def fail_writes(monkeypatch, code: int, root) -> None:
         if under(path) and code == errno.EROFS:
             raise OSError(code, os.strerror(code), str(path))
         return real_mkdir(path, mode, *a, **k)
-    monkeypatch.setattr(os, "open", fake_open)
-    monkeypatch.setattr(os, "write", fake_write)
-    monkeypatch.setattr(os, "mkdir", fake_mkdir)
+    return {"open": fake_open, "write": fake_write, "mkdir": fake_mkdir}
+
+
+def fail_writes(monkeypatch, code: int, root) -> None:
+    """The cache disk under ``root`` full or read-only for the rest of the test."""
+    for name, fake in failing_calls(code, root).items():
+        monkeypatch.setattr(os, name, fake)
