@@ -288,4 +288,4 @@ def discard(path: Path, why: str, what: str = "rebuilt") -> None:
             os.unlink(path)
             removed = True
     warn_once(f"fto_ros: {'discarded' if removed else 'ignored'} the cache file {path} "
-              f"({why}): {what}")
+              f"({why}): {what}{'' if removed else ' in memory'}")
