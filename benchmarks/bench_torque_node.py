@@ -207,7 +207,7 @@ def _measure(duration, node, echo_p, ex, last, count_file, me, env) -> dict:
 
 def micro(n: int = 3000) -> None:
     from fto_ros.cli.simulate_arm import read_arm_bag
-    from fto_ros.rigid import steps
+    from fto_ros.arm import steps
     from fto_ros.runner.torque_loop import TorqueLoop
     from fto_ros.runner.torque_settings import build
     run, _ = read_arm_bag(BAG)
@@ -248,7 +248,7 @@ def micro(n: int = 3000) -> None:
     rows.append(("numpy window_step alone", per_sample(
         lambda k: steps.window_step(st, c, 1e-3, q[k], run.tau[k], M, Md, np.zeros(7), Md,
                                     np.zeros(7)))))
-    from fto_ros.rigid import steps_compiled
+    from fto_ros.arm import steps_compiled
     new = np.empty_like(st)
     rows.append(("compiled window_step alone", per_sample(
         lambda k: steps_compiled.window_step(st, c, q[k], run.tau[k], M, Md, np.zeros(7), Md,

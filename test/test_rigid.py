@@ -1,4 +1,4 @@
-"""Arms from their URDF (fto_ros.rigid, fto_ros.models.arm, fto-simulate --urdf): dynamics
+"""Arms from their URDF (fto_ros.arm, fto_ros.models.arm, fto-simulate --urdf): dynamics
 against hand-computed cases, refusals, the estimators' claims, collision detection on the
 committed bags, reproducibility (junk into the new inputs: test_faults_arm.py). ROS-free."""
 from __future__ import annotations
@@ -12,10 +12,10 @@ import pytest
 from fto_ros.core.differentiator import Differentiator
 from fto_ros.core.errors import ConfigError
 from fto_ros.models.arm import ArmSettings, Contact, simulate_arm
-from fto_ros.rigid import load_model, steps
-from fto_ros.rigid.collision import CollisionDetector, detection_time, threshold_sigmas
-from fto_ros.rigid.external_torque import WindowEstimator, run_over
-from fto_ros.rigid.model import MAX_URDF_BYTES
+from fto_ros.arm import load_model, steps
+from fto_ros.arm.collision import CollisionDetector, detection_time, threshold_sigmas
+from fto_ros.arm.external_torque import WindowEstimator, run_over
+from fto_ros.arm.model import MAX_URDF_BYTES
 
 ROOT = Path(__file__).resolve().parents[1]
 URDF = ROOT / "urdf" / "arm7.urdf"
@@ -146,7 +146,7 @@ def test_bad_joint_lists_are_refused_naming_them(joints, locked, param, words):
 
 
 def test_a_huge_urdf_is_refused_before_parsing(tmp_path, monkeypatch):
-    import fto_ros.rigid.model as model_module
+    import fto_ros.arm.model as model_module
 
     def no_parse(*args, **kwargs):
         raise AssertionError("a URDF over the size limit was parsed")

@@ -182,7 +182,7 @@ def test_compiled_steps_equal_the_numpy_steps(arm_run):
     """The window estimator through steps_compiled (numba) and through steps (numpy) on 1.5 s
     of the contact bag around the contact: the same estimates up to rounding."""
     from fto_ros.core import jit
-    from fto_ros.rigid.external_torque import WindowEstimator, run_over
+    from fto_ros.arm.external_torque import WindowEstimator, run_over
     if not jit.ENABLED:
         pytest.skip("numba is off (FTO_ROS_NUMBA=0): the compiled steps are the numpy ones")
     model = build(PARAMS).model

@@ -40,7 +40,7 @@ from ..bag import BagError, BagWriter
 from ..core.errors import ConfigError
 from ..models.arm import ArmSettings, Contact, simulate_arm
 from ..models.simulate import to_ns
-from ..rigid.model import load_model
+from ..arm.model import load_model
 from ..core.command_line import guarded, non_negative_float, one_line, positive_float
 
 PROG = "fto-simulate"

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..rigid.model import RigidBodyModel
+from ..arm.model import RigidBodyModel
 
 
 @dataclass(frozen=True)
