@@ -122,6 +122,14 @@ class PinocchioReference:
         rhs = np.asarray(tau, float) - self.rnea(q, v, np.zeros_like(v), passive)
         return np.linalg.solve(self.mass_matrix(q, passive), rhs)
 
+    def momentum_terms(self, q, v, mass: bool = True, passive=None):
+        """(M, Mdot = C + C', C' v, g) as :meth:`.model.RigidBodyModel.momentum_terms`, from
+        crba, computeCoriolisMatrix and computeGeneralizedGravity (what the estimators called
+        per sample before the compiled dynamics)."""
+        C = self.coriolis_matrix(q, v, passive)
+        return (self.mass_matrix(q, passive) if mass else None), C + C.T, C.T @ v, \
+            self.gravity(q, passive)
+
     def jacobian(self, frame: str, q, passive=None) -> np.ndarray:
         pin, pm = self._pin, self.pin_model
         J = pin.computeFrameJacobian(pm, self.data, self.configuration(q, passive),

@@ -164,7 +164,10 @@ class _Reader:
         mass_el = el.find("mass")
         if mass_el is None or mass_el.get("value") is None:
             self.fail(f"{where}: <inertial> needs <mass value=...>")
-        mass = self.number(mass_el, "value", where, 0.0, minimum=None, finite=False)
+        try:
+            mass = float(mass_el.get("value"))
+        except ValueError:
+            mass = math.nan
         if not (math.isfinite(mass) and mass > 0):
             self.fail(f"{where}: the mass must be a finite number > 0, got "
                       f"{short(mass_el.get('value'))}")
