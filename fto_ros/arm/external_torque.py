@@ -44,6 +44,16 @@ class SampleRejected(FtoRosError, ValueError):
     """A sample the estimator cannot use; its state is unchanged."""
 
 
+class DesignRefused(FtoRosError, ValueError):
+    """An estimator design that cannot be built (the message names the setting)."""
+
+
+#: most memory the window estimator's ring (M and Mdot of every sample of the window) may
+#: take: with the URDF's joint cap and T = 60 ms at 1 kHz, configuring stays within about
+#: 200 MB (benchmarks/bench_urdf_size.py)
+MAX_WINDOW_BYTES = 64 * 2 ** 20
+
+
 class _Estimator:
     def __init__(self, model: RigidBodyModel, sample_period: float):
         if not (isinstance(sample_period, (int, float)) and 0 < sample_period < 1):
@@ -112,7 +122,12 @@ class WindowEstimator(_Estimator):
         #: the steps of :mod:`.steps_compiled` (default: when numba is on), else the numpy ones
         self.compiled = jit.ENABLED if compiled is None else bool(compiled)
         if not (8 <= W <= 2000 and abs(W * sample_period - window) < 1e-9 + 1e-6 * window):
-            raise ValueError(f"window: must be 8..2000 sample periods, got {window!r} s")
+            raise DesignRefused(f"window: must be 8..2000 sample periods, got {window!r} s")
+        ring = 8 * (W + 1) * (5 * model.n + 2 * model.n ** 2)
+        if ring > MAX_WINDOW_BYTES:
+            raise DesignRefused(f"window: {W} samples of {model.n} joints need {ring / 2 ** 20:.0f}"
+                                f" MiB, more than the {MAX_WINDOW_BYTES // 2 ** 20} MiB accepted: "
+                                f"a shorter window or fewer joints")
         self.samples = W
         self.window = W * sample_period
         self._red_c = steps.red_consts(velocity_order, velocity_L, velocity_rho)

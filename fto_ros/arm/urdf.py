@@ -34,9 +34,10 @@ import numpy as np
 
 from ..core.errors import ConfigError, short
 
-#: most joints a URDF may declare: what configures in about 2 s and 200 MB
+#: most joints a URDF may declare: with the external-torque node's window estimator
+#: (T = 60 ms at 1 kHz) a chain of 256 configures in 1.0-1.4 s and 190 MB above the imports
 #: (benchmarks/bench_urdf_size.py, docs/external_torque.md)
-MAX_JOINTS = 512
+MAX_JOINTS = 256
 #: a principal moment may exceed the sum of the other two by this fraction of the largest
 #: (the rounding of published inertias), no more
 TRIANGLE_TOLERANCE = 1e-4

@@ -167,3 +167,19 @@ L2 = link("l2", inertial(1.0, (0, 0, 0.1)))
 ])
 def test_structures_that_are_no_arm(text, words):
     refused(text, words)
+
+
+def test_the_joint_cap_and_the_windows_memory():
+    """F16: more joints than configure in about 2 s and 200 MB are refused before anything
+    is built; so is a window estimator whose ring would outgrow its budget."""
+    from arm_urdfs import chain
+    from fto_ros.arm.external_torque import MAX_WINDOW_BYTES, DesignRefused, WindowEstimator
+    from fto_ros.arm.urdf import MAX_JOINTS
+    assert load_model(None, robot_description=chain(MAX_JOINTS)).n == MAX_JOINTS
+    refused(chain(MAX_JOINTS + 1), f"{MAX_JOINTS + 1} joints: more than the {MAX_JOINTS}")
+    m = load_model(None, robot_description=chain(60))
+    WindowEstimator(m, window=0.06)
+    W = MAX_WINDOW_BYTES // (8 * (5 * 60 + 2 * 60 ** 2)) - 1      # the longest that fits
+    WindowEstimator(m, window=(W - 1) * 1e-3)
+    with pytest.raises(DesignRefused, match="MiB, more than the 64 MiB"):
+        WindowEstimator(m, window=(W + 1) * 1e-3)
