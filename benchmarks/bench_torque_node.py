@@ -222,14 +222,11 @@ def micro(n: int = 3000) -> None:
             f(k)
         return (time.perf_counter() - t0) / n * 1e6
     q, v = run.q_measured, run.v
-    rows = [("Pinocchio: M, C, g (momentum_terms)", per_sample(lambda k: model.momentum_terms(q[k], v[k]))),
-            ("  crba alone", per_sample(lambda k: model._pin.crba(model.model, model.data, model._q(q[k])))),
-            ("  computeCoriolisMatrix alone", per_sample(
-                lambda k: model._pin.computeCoriolisMatrix(model.model, model.data, model._q(q[k]),
-                                                           model._v(v[k])))),
-            ("  computeGeneralizedGravity alone", per_sample(
-                lambda k: model._pin.computeGeneralizedGravity(model.model, model.data,
-                                                               model._q(q[k]))))]
+    # the model's terms, compiled (Pinocchio's calls before: benchmarks/bench_arm_dynamics.py)
+    rows = [("model terms: M, Mdot, C'v, g (momentum_terms)",
+             per_sample(lambda k: model.momentum_terms(q[k], v[k]))),
+            ("  the same without M (the window's centre)",
+             per_sample(lambda k: model.momentum_terms(q[k], v[k], False)))]
     for compiled in (True, False):
         loop = TorqueLoop(build({"plant.urdf": str(URDF)}))
         loop.est.compiled = compiled

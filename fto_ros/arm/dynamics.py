@@ -18,8 +18,9 @@ Spatial algebra (motion m = (w; u), force f = (n; f), Featherstone's order):
   f_i = I_i a_i + v_i x* I_i v_i, tau_i = S_i' (sum of f over i's subtree);
 - g(q) = S_i' Ic_i a_g (a_g = (0; 0, 0, 9.81)); C(q, v) v: the RNEA with no gravity and
   qdd = 0;
-- Mdot = dM/dt along v: d/dt (S_i' Ic_j S_j) = S_i' (Icdot_j S_j + Ic_j (v_j x S_j) - v_i x* F_j),
-  F_j = Ic_j S_j, Icdot_j the sum of d/dt I_l over j's subtree;
+- Mdot = dM/dt along v: d/dt (S_i' Ic_j S_j) = S_i' (Icdot_j S_j + Ic_j (v_j x S_j) - v_i x* F_j)
+  = S_i' (Icdot_j S_j + Ic_j (v_j x S_j)) + (v_i x S_i)' F_j, F_j = Ic_j S_j, Icdot_j the sum
+  of d/dt I_l over j's subtree;
 - the Christoffel C (Mdot = C + C'): C = (Mdot + P - P') / 2, P = d(M(q) v)/dq at fixed v,
   P_dk = F_d . (v_parent(k) x S_k) for k an ancestor of d or d itself, P_kd = S_k . (S_d x* H_d +
   Ic_d (v_parent(d) x S_d)) for k a strict ancestor of d, H_d the momentum of d's subtree
@@ -122,28 +123,33 @@ def _inertia_to_world(b, R, p, out):
     hx = R[0, 0] * b[1] + R[0, 1] * b[2] + R[0, 2] * b[3]
     hy = R[1, 0] * b[1] + R[1, 1] * b[2] + R[1, 2] * b[3]
     hz = R[2, 0] * b[1] + R[2, 1] * b[2] + R[2, 2] * b[3]
-    J = np.empty((3, 3))
-    J[0, 0], J[1, 1], J[2, 2] = b[4], b[5], b[6]
-    J[1, 2] = J[2, 1] = b[7]
-    J[0, 2] = J[2, 0] = b[8]
-    J[0, 1] = J[1, 0] = b[9]
-    T = np.empty((3, 3))                              # R J R'
-    for i in range(3):
-        for k in range(3):
-            T[i, k] = R[i, 0] * J[0, k] + R[i, 1] * J[1, k] + R[i, 2] * J[2, k]
-    for i in range(3):
-        for k in range(3):
-            J[i, k] = T[i, 0] * R[k, 0] + T[i, 1] * R[k, 1] + T[i, 2] * R[k, 2]
+    xx, yy, zz, yz, xz, xy = b[4], b[5], b[6], b[7], b[8], b[9]
+    # T = R J (J the body's rotational inertia), then R J R' = T R'
+    t00 = R[0, 0] * xx + R[0, 1] * xy + R[0, 2] * xz
+    t01 = R[0, 0] * xy + R[0, 1] * yy + R[0, 2] * yz
+    t02 = R[0, 0] * xz + R[0, 1] * yz + R[0, 2] * zz
+    t10 = R[1, 0] * xx + R[1, 1] * xy + R[1, 2] * xz
+    t11 = R[1, 0] * xy + R[1, 1] * yy + R[1, 2] * yz
+    t12 = R[1, 0] * xz + R[1, 1] * yz + R[1, 2] * zz
+    t20 = R[2, 0] * xx + R[2, 1] * xy + R[2, 2] * xz
+    t21 = R[2, 0] * xy + R[2, 1] * yy + R[2, 2] * yz
+    t22 = R[2, 0] * xz + R[2, 1] * yz + R[2, 2] * zz
+    j00 = t00 * R[0, 0] + t01 * R[0, 1] + t02 * R[0, 2]
+    j11 = t10 * R[1, 0] + t11 * R[1, 1] + t12 * R[1, 2]
+    j22 = t20 * R[2, 0] + t21 * R[2, 1] + t22 * R[2, 2]
+    j12 = t10 * R[2, 0] + t11 * R[2, 1] + t12 * R[2, 2]
+    j02 = t00 * R[2, 0] + t01 * R[2, 1] + t02 * R[2, 2]
+    j01 = t00 * R[1, 0] + t01 * R[1, 1] + t02 * R[1, 2]
     px, py, pz = p[0], p[1], p[2]
     d = 2.0 * (hx * px + hy * py + hz * pz) + m * (px * px + py * py + pz * pz)
     out[0] = m
     out[1], out[2], out[3] = hx + m * px, hy + m * py, hz + m * pz
-    out[4] = J[0, 0] + d - 2.0 * hx * px - m * px * px
-    out[5] = J[1, 1] + d - 2.0 * hy * py - m * py * py
-    out[6] = J[2, 2] + d - 2.0 * hz * pz - m * pz * pz
-    out[7] = J[1, 2] - hy * pz - py * hz - m * py * pz
-    out[8] = J[0, 2] - hx * pz - px * hz - m * px * pz
-    out[9] = J[0, 1] - hx * py - px * hy - m * px * py
+    out[4] = j00 + d - 2.0 * hx * px - m * px * px
+    out[5] = j11 + d - 2.0 * hy * py - m * py * py
+    out[6] = j22 + d - 2.0 * hz * pz - m * pz * pz
+    out[7] = j12 - hy * pz - py * hz - m * py * pz
+    out[8] = j02 - hx * pz - px * hz - m * px * pz
+    out[9] = j01 - hx * py - px * hy - m * px * py
 
 
 # -- coordinates and kinematics -------------------------------------------------------------
@@ -286,19 +292,20 @@ def _mass_rate_full(rows, S, vel, Iw, Ic):
     for i in range(nb):
         _inertia_rate(Iw[i], vel[i], rate[i])
     rate = _subtree_sums(rows, rate)
+    X = np.empty((nb, 6))                   # S_i' = v_i x S_i
+    for i in range(nb):
+        _cross_motion(vel[i], S[i], X[i])
     Md = np.zeros((nb, nb))                 # zero where neither joint is above the other
-    F, G, x, y = np.empty(6), np.empty(6), np.empty(6), np.empty(6)
+    F, G, y = np.empty(6), np.empty(6), np.empty(6)
     for j in range(nb):
         _inertia_times(Ic[j], S[j], F)
-        _cross_motion(vel[j], S[j], x)
-        _inertia_times(Ic[j], x, G)
+        _inertia_times(Ic[j], X[j], G)
         _inertia_times(rate[j], S[j], y)
         for k in range(6):
             G[k] += y[k]
         i = j
-        while i >= 0:
-            _cross_force(vel[i], F, y)
-            Md[i, j] = Md[j, i] = _dot6(S[i], G) - _dot6(S[i], y)
+        while i >= 0:                       # -S_i . (v_i x* F_j) = (v_i x S_i) . F_j
+            Md[i, j] = Md[j, i] = _dot6(S[i], G) + _dot6(X[i], F)
             i = int(rows[i, PARENT])
     return Md
 
@@ -393,20 +400,27 @@ def coriolis_matrix(rows, n, q, passive, v):
 
 @jit
 def momentum_terms(rows, n, q, passive, v, mass):
-    """(M or an empty matrix without ``mass``, Mdot, C' v, g): what the torque estimators
-    take per sample, from one kinematic pass; C' v = Mdot v - C v."""
+    """[M (n x n, zeros without ``mass``), Mdot (n x n), C' v, g] in one flat array (one
+    array handed back to Python, not four): what the torque estimators take per sample,
+    from one kinematic pass; C' v = Mdot v - C v."""
     qf, vf = full_coordinates(rows, q, passive, v)
     Rw, pw, S, vel, Iw = _bodies(rows, qf, vf)
     Ic = _subtree_sums(rows, Iw)
-    M = _reduce_matrix(rows, n, _mass_full(rows, S, Ic)) if mass else np.empty((0, 0))
+    out = np.zeros(2 * n * n + 2 * n)
+    if mass:
+        out[:n * n] = _reduce_matrix(rows, n, _mass_full(rows, S, Ic)).ravel()
     Md = _reduce_matrix(rows, n, _mass_rate_full(rows, S, vel, Iw, Ic))
+    out[n * n:2 * n * n] = Md.ravel()
     cv = _reduce_vector(rows, n, _rnea_full(rows, S, vel, Iw, vf, np.zeros(qf.size), False))
     g = _reduce_vector(rows, n, _gravity_full(S, Ic))
-    ctv = -cv
+    o = 2 * n * n
     for i in range(n):
+        s = -cv[i]
         for k in range(n):
-            ctv[i] += Md[i, k] * v[k]
-    return M, Md, ctv, g
+            s += Md[i, k] * v[k]
+        out[o + i] = s
+        out[o + n + i] = g[i]
+    return out
 
 
 @jit

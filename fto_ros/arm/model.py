@@ -249,10 +249,11 @@ class RigidBodyModel:
     def momentum_terms(self, q, v, mass: bool = True, passive=None):
         """(M, Mdot, C^T v, g) at (q, v), from one kinematic pass: what the estimators' steps
         take from the model (called twice per sample); M is None without ``mass``."""
-        M, Md, ctv, g = dyn.momentum_terms(self.tree.rows, self.n, self._vec(q, "positions"),
-                                           self._passive(passive), self._vec(v, "velocities"),
-                                           bool(mass))
-        return (M if mass else None), Md, ctv, g
+        n = self.n
+        out = dyn.momentum_terms(self.tree.rows, n, self._vec(q, "positions"),
+                                 self._passive(passive), self._vec(v, "velocities"), bool(mass))
+        return (out[:n * n].reshape(n, n) if mass else None), \
+            out[n * n:2 * n * n].reshape(n, n), out[2 * n * n:2 * n * n + n], out[2 * n * n + n:]
 
     def _frame(self, link: str, param: str = "contact.link"):
         if not isinstance(link, str) or link not in self.tree.frames:
