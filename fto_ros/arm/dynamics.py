@@ -9,7 +9,8 @@ Spatial algebra (motion m = (w; u), force f = (n; f), Featherstone's order):
 
     m1 x m2  = (w1 x w2; w1 x u2 + u1 x w2)          m x* f = (w x n + u x f; w x f)
     I m      = (I_O w + h x u; m u - h x w)           (10 parameters: m, h = m c, I_O)
-    d/dt I_i = v_i x* I_i - I_i v_i x  = (0, w x h + m u, [w] I_O - I_O [w] + 2 (u.h) 1 - h u' - u h')
+    d/dt I_i = v_i x* I_i - I_i v_i x
+             = (0, w x h + m u, [w] I_O - I_O [w] + 2 (u.h) 1 - h u' - u h')
     S_i' = v_i x S_i  (S_i is fixed in body i)
 
 - M_ij = S_i' Ic_j S_j for i an ancestor of j (or i = j), Ic_j the composite inertia of j's

@@ -1,6 +1,6 @@
 """External joint torques of an arm: the adapters around the pure steps of :mod:`.steps`.
 
-Each adapter owns a design (its constants), the restart and the calls to Pinocchio, and is
+Each adapter owns a design (its constants), the restart and the calls to the model, and is
 transactional: a sample it cannot use (not one finite value per joint, an absurd value, a
 stamp that is not one sample period after the last) raises :class:`SampleRejected` and
 leaves every state as it was; after a gap, ``reset()``. ``update(t, q, tau)`` takes the measured positions at t and the torques

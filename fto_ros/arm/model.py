@@ -285,7 +285,8 @@ class RigidBodyModel:
 
 
 def load_model(joints: Sequence[str] | None, *, urdf: str | os.PathLike | None = None,
-               robot_description: str | None = None, locked_joints: Mapping[str, float] | None = None,
+               robot_description: str | None = None,
+               locked_joints: Mapping[str, float] | None = None,
                viscous_friction=None, coulomb_friction=None,
                friction_width: float = DEFAULT_FRICTION_WIDTH, armature=None) -> RigidBodyModel:
     """A :class:`RigidBodyModel` from a URDF file (``plant.urdf``) or string

@@ -118,6 +118,15 @@ class _Reader:
     def fail(self, message: str):
         raise ConfigError(self.param, message)
 
+    def name(self, el, seen) -> str:
+        """The name of a <link> or <joint>, new among ``seen``."""
+        name = el.get("name")
+        if not name:
+            self.fail(f"a <{el.tag}> without a name")
+        if name in seen:
+            self.fail(f"{el.tag} {short(name)} is defined twice")
+        return name
+
     def numbers(self, el, attr: str, count: int, where: str, default=None) -> list[float]:
         text = None if el is None else el.get(attr)
         if text is None:
@@ -270,21 +279,12 @@ def parse(text: str, param: str) -> Urdf:
     read = _Reader(param)
     links = {}
     for el in root.findall("link"):
-        name = el.get("name")
-        if not name:
-            read.fail("a <link> without a name")
-        if name in links:
-            read.fail(f"link {short(name)} is defined twice")
-        links[name] = read.inertial(el)
+        links[read.name(el, links)] = read.inertial(el)
     if not links:
         read.fail("not a URDF: no <link>")
     joints, parent_of = {}, {}
     for el in root.findall("joint"):
-        name = el.get("name")
-        if not name:
-            read.fail("a <joint> without a name")
-        if name in joints:
-            read.fail(f"joint {short(name)} is defined twice")
+        name = read.name(el, joints)
         j = read.joint(el)
         for link in (j.parent, j.child):
             if link not in links:

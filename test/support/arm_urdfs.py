@@ -81,8 +81,9 @@ def gripper_arm(seed: int = 0, multiplier: float = -1.0, offset: float = 0.01,
                     axis=(0, 1, 0), extra='<dynamics damping="0.0" armature="0.01"/>'),
               link("finger_link_1", _random_inertial(rng, 0.1)),
               joint("finger_2", "prismatic", "hand", "finger_link_2", (0, -0.02, 0.06),
-                    axis=(0, -1, 0), extra=f'<mimic joint="finger_1" multiplier="{multiplier!r}"'
-                                           f' offset="{offset!r}"/><dynamics damping="0.0" armature="0.01"/>'),
+                    axis=(0, -1, 0),
+                    extra=f'<mimic joint="finger_1" multiplier="{multiplier!r}" offset="{offset!r}"/>'
+                          f'<dynamics damping="0.0" armature="0.01"/>'),
               link("finger_link_2", _random_inertial(rng, 0.1))]
     if camera:
         parts += [joint("pan", "revolute", "link_2", "camera", (0.05, 0, 0.1), (0, 0.4, 0),
