@@ -19,8 +19,8 @@ Joints (docs/external_torque.md):
   defaults, 0 or the position ``locked_joints`` gives) and its velocity is zero: a gripper's
   fingers change the arm's inertia as they move;
 - a ``<mimic joint=P multiplier=m offset=o>`` joint follows P: q = m q_P + o, v = m v_P
-  (its armature counts m^2 times on P; its friction is not modelled). Listing it, or locking
-  it, is refused naming P.
+  (its armature counts m^2 times on P; its friction is not modelled). Listing it is refused
+  naming P; locking it, unless at the position P's gives it.
 
 A payload (mass, centre of mass, inertia) at a named frame changes one body's inertia at
 run time (:meth:`RigidBodyModel.set_payload`). Refusals are one ``ConfigError`` line naming
@@ -92,10 +92,6 @@ def _roles(robot: Urdf, joints, locked: Mapping[str, float], joints_param: str):
     if unknown:
         raise ConfigError("plant.locked_joints", f"the URDF has no joint(s) {', '.join(unknown)}"
                                                  f" that move")
-    follows = [f"{j} follows {mimic[j]}" for j in locked if j in mimic]
-    if follows:
-        raise ConfigError("plant.locked_joints", f"<mimic> joint(s) cannot be locked: "
-                                                 f"{'; '.join(follows)}")
     both = [j for j in locked if j in joints]
     if both:
         raise ConfigError("plant.locked_joints", f"joint(s) {', '.join(both)} are also in "
@@ -112,6 +108,13 @@ def _roles(robot: Urdf, joints, locked: Mapping[str, float], joints_param: str):
             raise ConfigError("plant.locked_joints", f"{name}: the position must be a finite "
                                                      f"number, got {short(value)}")
         default.append(x)
+    for name in (j for j in locked if j in mimic):    # it follows: only where it is anyway
+        src, m, o = robot.mimic_source(name)
+        there = m * (default[passive.index(src)] if src in passive else math.nan) + o
+        if not abs(float(locked[name]) - there) <= 1e-9 * (1 + abs(there)):
+            raise ConfigError("plant.locked_joints", f"{name} follows {src} (<mimic>): it can "
+                                                     f"be locked only where {src} puts it ("
+                              + (f"{there:.9g})" if src in passive else f"{src} moves)"))
     return joints, passive, np.array(default, dtype=float)
 
 

@@ -47,11 +47,19 @@ def test_mimic_joints_follow_their_parent():
     p = load_model(ARM, robot_description=text)
     qf, vf = p.full_state(np.zeros(5), np.ones(5), passive=[0.03, 0.2])
     assert qf[names.index("finger_2")] == -0.5 * 0.03 + 0.02 and vf[names.index("finger_2")] == 0
+    # locking both fingers, consistently (as a user locked each finger by hand before)
+    both = load_model(ARM, robot_description=text, locked_joints={"finger_1": 0.03,
+                                                                  "finger_2": 0.005})
+    assert both.passive_joints == ("finger_1", "pan") and both.passive_default[0] == 0.03
 
 
 @pytest.mark.parametrize("joints, locked, param, words", [
     (["joint_1", "finger_2"], None, "plant.joints", "finger_2 follows finger_1"),
-    (ARM, {"finger_2": 0.01}, "plant.locked_joints", "finger_2 follows finger_1"),
+    (ARM, {"finger_2": 0.02}, "plant.locked_joints", "finger_2 follows finger_1 (<mimic>): "
+                                                     "it can be locked only where finger_1 "
+                                                     "puts it (0.01)"),
+    (["joint_1", "finger_1"], {"finger_2": 0.01}, "plant.locked_joints",
+     "only where finger_1 puts it (finger_1 moves)"),
     (ARM + ["tcp_joint"], None, "plant.joints", "tcp_joint (a fixed joint)"),
     (ARM, {"finger_1": float("inf")}, "plant.locked_joints", "finger_1: the position"),
     (ARM, {"joint_1": 0.0}, "plant.locked_joints", "joint_1 are also in plant.joints"),
