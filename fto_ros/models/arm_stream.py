@@ -40,8 +40,9 @@ def header_stamps(t: np.ndarray, noise: float, seed: int) -> np.ndarray:
 
 def lost_messages(samples: int, probability: float, burst: int, seed: int) -> np.ndarray:
     """True where a message is lost: each message not inside a run starts a run of lost ones
-    with probability q, its length uniform in 1..burst; q = P / (E[L] (1 - P) + P) makes the
-    expected fraction lost P (burst 1: each message lost independently with probability P)."""
+    with probability q, its length L uniform in 1..burst, and the message after a run is
+    received (no run is longer than burst); q = P / (E[L] (1 - P)) makes the expected
+    fraction lost P (burst 1: each message lost with probability P, never two in a row)."""
     if not 0.0 <= probability < 1.0:
         raise ConfigError("loss", f"must be a probability in [0, 1), got {short(probability)}")
     if int(burst) != burst or burst < 1:
@@ -51,14 +52,17 @@ def lost_messages(samples: int, probability: float, burst: int, seed: int) -> np
         return lost
     rng = np.random.default_rng([int(seed), LOSS])
     mean = (1 + int(burst)) / 2
-    q = probability / (mean * (1 - probability) + probability)
+    q = probability / (mean * (1 - probability))
+    if q >= 1:
+        raise ConfigError("loss", f"{probability:g} is more than runs of up to {int(burst)} "
+                                  f"lost messages can give")
     starts = rng.random(samples) < q
     lengths = rng.integers(1, int(burst) + 1, samples)
     k = 0
     while k < samples:
         if starts[k]:
             lost[k:k + lengths[k]] = True
-            k += lengths[k]
+            k += lengths[k] + 1
         else:
             k += 1
     return lost
