@@ -39,7 +39,7 @@ def bags(tmp_path_factory):
         "measured": ["--duration", "0.3", "--effort", "measured", "--friction", "0.5,1,0.5,1",
                      "--model-error", "0.05", "--model-seed", "4"],
         "current": ["--duration", "0.2", "--effort", "current", "--kt",
-                    "0.1,0.1,0.1,0.1,0.2,0.2,0.2", "--gear", "100,100,100,100,50,50,50"],
+                    "0.1,0.1,0.1,0.1,0.2,0.2,0.2", "--gear", "100,100,100,100,80,80,80"],
     }
     for name, args in runs.items():
         assert simulate(d / name, *args) == 0
@@ -104,7 +104,7 @@ def test_model_error_and_friction_are_drawn_by_the_model_seed(bags, tmp_path):
 def test_current_times_kt_and_gear_is_the_motor_torque(bags):
     run, meta = read_arm_bag(bags / "current")
     kt = np.array([0.1] * 4 + [0.2] * 3)
-    gear = np.array([100.0] * 4 + [50.0] * 3)
+    gear = np.array([100.0] * 4 + [80.0] * 3)
     assert meta["stream"]["kt"] == kt.tolist() and meta["stream"]["effort"] == "current"
     np.testing.assert_allclose(run.effort[:, :7] * kt * gear, run.tau[:, :7], rtol=1e-12,
                                atol=1e-12)
