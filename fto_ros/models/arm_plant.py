@@ -10,8 +10,9 @@ v_P)``, K = M_PP(q0) omega^2, D = 2 M_PP(q0) omega (a mimic finger's trajectory 
 parent's through the mimic relation). The fingers' motion acts on the arm through M(q).
 
 Integration: classical RK4, each control interval [t_k, t_k+1] cut at the contacts' switching
-and ramp times (no RK4 step straddles a discontinuity of the force or its slope) and each
-piece integrated in steps of at most ``max_step``.
+and ramp times (no RK4 step straddles a discontinuity of the force or its slope; which
+contacts act over a piece is decided at its midpoint, their force follows its ramp inside
+it) and each piece integrated in steps of at most ``max_step``.
 """
 from __future__ import annotations
 
@@ -47,6 +48,12 @@ class Contact:
         if self.rise <= 0.0:
             return 1.0
         return min(1.0, (t - a) / self.rise, (b - t) / self.rise)
+
+    def ramp(self, t: float) -> float:
+        """The force's fraction at t inside an interval where it acts (no switching)."""
+        if self.rise <= 0.0:
+            return 1.0
+        return min(1.0, (t - self.t) / self.rise, (self.t + self.duration - t) / self.rise)
 
     def breaks(self) -> tuple[float, ...]:
         """The times where the force or its slope jumps."""
@@ -103,11 +110,13 @@ class ArmPlant:
             q[self.P], v[self.P] = self.trajectory(t)
         return q, v
 
-    def external(self, t: float, q) -> np.ndarray:
-        """The contacts' joint torques J^T F at t, every joint."""
+    def external(self, t: float, q, active=None) -> np.ndarray:
+        """The contacts' joint torques J^T F at t, every joint: of the contacts acting at t
+        (a sample instant), or of ``active`` at their ramp value (inside a step, which
+        no switching time cuts)."""
         tau = np.zeros(self.n)
-        for c in self.contacts:
-            s = c.scale(t)
+        for c in (self.contacts if active is None else active):
+            s = c.scale(t) if active is None else c.ramp(t)
             if s:
                 tau += self.model.jacobian(c.link, q)[:3].T @ (s * np.asarray(c.force))
         return tau
@@ -119,9 +128,9 @@ class ArmPlant:
             return np.zeros(4)
         return np.array([1.0, *sum(c.scale(t) * np.asarray(c.force) for c in active)])
 
-    def accel(self, t: float, tc: float, q, v, tauA) -> np.ndarray:
-        """The joints' accelerations at t (the contacts evaluated at tc, a time inside the
-        current step); tauA: the driven joints' torques."""
+    def accel(self, t: float, q, v, tauA, active) -> np.ndarray:
+        """The joints' accelerations at t; tauA: the driven joints' torques, active: the
+        contacts acting over the current step."""
         if self.P.size:
             tau = np.empty(self.n)
             tau[self.A] = tauA
@@ -129,8 +138,8 @@ class ArmPlant:
             tau[self.P] = self.kp * (qd - q[self.P]) + self.kd * (vd - v[self.P])
         else:
             tau = tauA
-        if self.contacts:
-            tau = tau + self.external(tc, q)
+        if active:
+            tau = tau + self.external(t, q, active)
         return self.model.forward_dynamics(q, v, tau)
 
     def advance(self, t0: float, t1: float, q, v, tauA, max_step: float):
@@ -144,24 +153,22 @@ class ArmPlant:
                 continue
             steps = max(1, math.ceil((b - a) / max_step - 1e-9))
             hs = (b - a) / steps
+            active = [c for c in self.contacts if c.scale(0.5 * (a + b))]
             for i in range(steps):
-                q, v = self._rk4(a + i * hs, hs, q, v, tauA)
+                q, v = self._rk4(a + i * hs, hs, q, v, tauA, active)
         if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
             raise SimulationError(f"the simulation diverged at t = {t1:.4f} s")
         return q, v
 
-    def _rk4(self, ts, hs, q, v, tau):
-        # a contact switching on the step's boundary acts on the whole step after it, never
-        # on the stages of the one before
-        lo, hi = ts + 1e-7 * hs, ts + (1 - 1e-7) * hs
+    def _rk4(self, ts, hs, q, v, tau, active):
         half = ts + hs / 2
-        k1v = self.accel(ts, lo, q, v, tau)
+        k1v = self.accel(ts, q, v, tau, active)
         k1q = v
         k2q = v + hs / 2 * k1v
-        k2v = self.accel(half, half, q + hs / 2 * k1q, k2q, tau)
+        k2v = self.accel(half, q + hs / 2 * k1q, k2q, tau, active)
         k3q = v + hs / 2 * k2v
-        k3v = self.accel(half, half, q + hs / 2 * k2q, k3q, tau)
+        k3v = self.accel(half, q + hs / 2 * k2q, k3q, tau, active)
         k4q = v + hs * k3v
-        k4v = self.accel(ts + hs, hi, q + hs * k3q, k4q, tau)
+        k4v = self.accel(ts + hs, q + hs * k3q, k4q, tau, active)
         return (q + hs / 6 * (k1q + 2 * k2q + 2 * k3q + k4q),
                 v + hs / 6 * (k1v + 2 * k2v + 2 * k3v + k4v))

@@ -136,3 +136,11 @@ def test_bad_values_are_refused_in_one_line(tmp_path, capsys, args, words):
     err = capsys.readouterr().err.strip()
     assert words in err and "\n" not in err, err
     assert not (tmp_path / "x").exists()
+
+
+def test_locking_the_parent_finger_locks_its_mimic(tmp_path):
+    assert simulate(tmp_path / "locked", "--duration", "0.02",
+                    "--lock", "panda_finger_joint1=0.03") == 0
+    run, meta = read_arm_bag(tmp_path / "locked")
+    assert run.names == tuple(ARM)
+    assert meta["locked_joints"] == {"panda_finger_joint1": 0.03, "panda_finger_joint2": 0.03}
