@@ -31,11 +31,23 @@ from fto_ros.arm.model import load_model  # noqa: E402
 
 class PinocchioTerms:
     """The estimators' per-sample terms as computed before the compiled dynamics: Pinocchio's
-    full model of a chain whose every joint is listed (no reduction)."""
+    model, its joints not listed locked where the model puts them (buildReducedModel, as
+    every unlisted joint had to be locked then)."""
 
     def __init__(self, model, text: str):
         import pinocchio as pin
-        self.pin, self.pm = pin, pin.buildModelFromXML(text)
+        full = pin.buildModelFromXML(text)
+        qf, _ = model.full_state(np.zeros(model.n))
+        q0 = pin.neutral(full)
+        lock = []
+        for name, x in zip(model.moving_joints, qf):
+            if name not in model.joints:
+                j = full.getJointId(name)
+                q0[full.joints[j].idx_q] = x
+                lock.append(j)
+        self.pin, self.pm = pin, pin.buildReducedModel(full, lock, q0) if lock else full
+        if [self.pm.names[i] for i in range(1, self.pm.njoints)] != list(model.joints):
+            raise SystemExit("the listed joints are not Pinocchio's tree order")
         self.pm.armature = np.asarray(model.armature, dtype=float)
         self.data = self.pm.createData()
         self.lower = np.tril_indices(model.n, -1)
@@ -78,7 +90,7 @@ def arms():
     text = (ROOT / "urdf" / "arm7.urdf").read_text()
     out.append(("arm7 (7 joints)", text, None, run.q_measured, run.v, run.tau))
     panda = ROOT / "urdf" / "panda_gripper.urdf"
-    if panda.exists():                 # the fingers are not in Pinocchio's terms: listed
+    if panda.exists():
         text = panda.read_text()
         m = load_model(None, robot_description=text)
         t = np.arange(10000) * 1e-3
@@ -101,11 +113,11 @@ def main(argv=None) -> int:
     print("|---|---|---|---|---|")
     for name, text, joints, q, v, tau in arms():
         model = load_model(joints, robot_description=text)
-        if model.passive_joints:      # Pinocchio's model has the fingers: reduce to the arm
-            from fto_ros.arm.pin_reference import PinocchioReference
-            ref = PinocchioReference(model, text)
-        else:
-            ref = PinocchioTerms(model, text)
+        ref = PinocchioTerms(model, text)
+        for x, y in zip(ref.momentum_terms(q[2000], v[2000]),
+                        model.momentum_terms(q[2000], v[2000])):
+            if not np.allclose(x, y, rtol=0, atol=1e-10 * np.abs(x).max()):
+                raise SystemExit(f"{name}: the two sides' terms differ")
         ests = {}
         for side, terms in (("before", ref.momentum_terms), ("after", model.momentum_terms)):
             est = WindowEstimator(model)
