@@ -44,7 +44,12 @@ def dc_motor_voltage(t: np.ndarray) -> np.ndarray:
     return (4.0 + 3.0 * np.sin(7.0 * t) + 1.5 * np.cos(23.0 * t))[:, None]
 
 
-def dc_motor_stream(t: np.ndarray, x0=(0.3, -2.0, 0.5)):
+def dc_motor_stream(t: np.ndarray, x0=(0.3, -2.0, 0.5), jump: tuple | None = None):
+    """``jump`` = (sample j, dx): the state jumps by dx just before sample j (a collision:
+    bags/dc_motor_collision adds 4 rad/s to q_dot)."""
     u = dc_motor_voltage(t)
     x = NS.simulate(dc_motor_rhs, np.asarray(x0, float), t, u)
+    if jump is not None:
+        j, dx = jump
+        x[j:] = NS.simulate(dc_motor_rhs, x[j] + np.asarray(dx, float), t[j:], u[j:])
     return t, x, x[:, :1].copy(), u

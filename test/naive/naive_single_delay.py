@@ -88,29 +88,55 @@ class Design:
                 + self.Si @ (psi2 - self.E2 @ d2))
 
 
-def continuous_reference(design: Design, t, y, u):
-    """The published estimate (q, q_dot, I) at every stamp; the stamps must be regular with
-    tau a whole number of periods (the delayed values are then samples of the run)."""
-    h = NS.steps(t)
-    lag = round(design.tau / h[0])
-    assert np.all(h == h[0]) and abs(lag * h[0] - design.tau) < 1e-12, "regular stamps, tau = lag h"
-    Az, Bz = design.extension()
-    n1 = A1.shape[0]
-    k = design.k
+class Continuous:
+    """The continuous form one sample at a time, on a regular grid of period h with tau a
+    whole number of periods (the delayed values are then samples of this run):
+    ``first(Y, u)``, then ``take(Y, u_held)`` (u_held: the input over the interval);
+    ``estimate`` = (q, q_dot, I) = (Y, xi_e); ``samples`` since the start."""
 
-    def w(Y, uu):
-        return np.concatenate((F1(Y, uu), k * Y, Y))         # (F1, F2 = G + k Y, Y)
-    z = np.zeros(Az.shape[0])
-    z[n1:n1 + 1] = y[0]
-    zs = [z]
-    out = []
-    for j in range(len(t)):
-        if j > 0:
-            # w linear over the interval: u held at u[j-1] (the end value of F1 too)
-            z = NS.linear_hold_step(Az, Bz, z, w(y[j - 1], u[j - 1]), w(y[j], u[j - 1]), h[0])
-            zs.append(z)
-        xi = design.estimate(z, y[j], zs[j - lag]) if j >= lag else z[:n1]
-        out.append(np.concatenate((y[j], xi)))
+    def __init__(self, design: "Design", h: float):
+        self.d, self.h = design, h
+        self.lag = round(design.tau / h)
+        assert abs(self.lag * h - design.tau) < 1e-12, "tau must be a whole number of periods"
+        self.Az, self.Bz = design.extension()
+
+    def _w(self, Y, u):
+        return np.concatenate((F1(Y, u), self.d.k * Y, Y))   # (F1, F2 = G + k Y, Y)
+
+    def first(self, Y, u):
+        n1 = A1.shape[0]
+        z = np.zeros(self.Az.shape[0])
+        z[n1:n1 + 1] = Y
+        self.zs, self.Y, self.u = [z], Y, u
+        return self._publish()
+
+    def take(self, Y, u_held):
+        # w linear over the interval, the input held (the end value of F1 too)
+        z = NS.linear_hold_step(self.Az, self.Bz, self.zs[-1], self._w(self.Y, u_held),
+                                self._w(Y, u_held), self.h)
+        self.zs.append(z)
+        self.Y = Y
+        return self._publish()
+
+    @property
+    def samples(self):
+        return len(self.zs)
+
+    def _publish(self):
+        j, z = len(self.zs) - 1, self.zs[-1]
+        xi = self.d.estimate(z, self.Y, self.zs[j - self.lag]) if j >= self.lag else z[:A1.shape[0]]
+        self.estimate = np.concatenate((self.Y, xi))
+        return self.estimate
+
+
+def continuous_reference(design: Design, t, y, u):
+    """The published estimate (q, q_dot, I) at every stamp (regular stamps)."""
+    h = NS.steps(t)
+    assert np.all(h == h[0]), "regular stamps"
+    obs = Continuous(design, h[0])
+    out = [obs.first(y[0], u[0])]
+    for j in range(1, len(t)):
+        out.append(obs.take(y[j], u[j - 1]))
     return np.array(out)
 
 

@@ -75,12 +75,12 @@ def simulate(rhs, x0, t: np.ndarray, u: np.ndarray | None) -> np.ndarray:
     return x
 
 
-def run(flat: dict, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None,
-        runner: Runner | None = None):
-    """(estimates, unknown-input estimates or None, the runner) of the package at every
-    sample: set_input(t_k, u_k) then process(t_k, y_k); every sample must be accepted."""
-    r = runner or Runner(flat)
-    est, ui = [], []
+def run(flat: dict, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None):
+    """(estimates, unknown-input estimates or None, convergence values) of the package at
+    every sample: set_input(t_k, u_k) then process(t_k, y_k); every sample must be
+    accepted."""
+    r = Runner(flat)
+    est, ui, conv = [], [], []
     for k in range(len(t)):
         if u is not None:
             bad = r.set_input(float(t[k]), np.asarray(u[k], float))
@@ -89,8 +89,9 @@ def run(flat: dict, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None,
         assert isinstance(out, Output), f"sample {k} at t = {t[k]} not accepted: {out}"
         est.append(out.estimate)
         ui.append(out.unknown_input)
+        conv.append(out.convergence)
     ui = None if ui[0] is None else np.array(ui)
-    return np.array(est), ui, r
+    return np.array(est), ui, np.array(conv)
 
 
 def deviation(got: np.ndarray, ref: np.ndarray) -> tuple[float, int]:

@@ -28,60 +28,13 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
+import naive_ekf as NE
 import naive_plants as NP
 import naive_support as NS
 
 FAMILY = "ekf"
 FORMS = ("ekf",)
 TOL = 1e-10
-DC = NP.DC
-
-
-def dc_f(x, u):
-    return NP.dc_motor_rhs(x, u)
-
-
-def dc_jacobian(x, u):
-    return np.array([[0.0, 1.0, 0.0],
-                     [-DC["a1"] * np.cos(x[0]), -DC["a2"], DC["b1"]],
-                     [0.0, -DC["a3"], -DC["a4"]]])
-
-
-def predict(x, P, u, dt, Qc, f, jac):
-    n = len(x)
-    A = jac(x, u)
-    Mx = np.zeros((n + 1, n + 1))
-    Mx[:n, :n] = A
-    Mx[:n, n] = f(x, u)
-    x_new = x + expm(Mx * dt)[:n, n]
-    V = np.block([[-A, Qc], [np.zeros((n, n)), A.T]]) * dt
-    E = expm(V)
-    Phi = E[n:, n:].T
-    Qd = Phi @ E[:n, n:]
-    return x_new, Phi @ P @ Phi.T + (Qd + Qd.T) / 2
-
-
-def ekf_reference(t, y, u, Qc, R, P0, max_step, f, jac, H):
-    """x_hat at every stamp (see the module doc); h(x) = H x."""
-    n = H.shape[1]
-    Hp = np.linalg.pinv(H)
-    N = np.eye(n) - Hp @ H
-    x = Hp @ y[0]
-    P = Hp @ R @ Hp.T + N @ P0 @ N.T
-    out = [x]
-    for k, dt in enumerate(NS.steps(t)):
-        subs = int(np.ceil(dt / max_step - 1e-9))
-        for _ in range(subs):
-            x, P = predict(x, P, u[k], dt / subs, Qc, f, jac)
-        nu = y[k + 1] - H @ x
-        S = H @ P @ H.T + R
-        K = P @ H.T @ np.linalg.inv(S)
-        x = x + K @ nu
-        IKH = np.eye(n) - K @ H
-        P = IKH @ P @ IKH.T + K @ R @ K.T
-        P = (P + P.T) / 2
-        out.append(x)
-    return np.array(out)
 
 
 @pytest.mark.parametrize("max_step", [0.01, 0.0004])
@@ -94,7 +47,7 @@ def test_ekf_matches_its_naive_reference(max_step):
     R = np.diag(flat["ekf.measurement_noise"])
     P0 = np.diag(flat["ekf.initial_covariance"])
     H = np.array([[1.0, 0.0, 0.0]])
-    ref = ekf_reference(t, y, u, Qc, R, P0, max_step, dc_f, dc_jacobian, H)
+    ref = NE.ekf_reference(t, y, u, Qc, R, P0, max_step, NE.dc_f, NE.dc_jacobian, H)
     est, _, _ = NS.run(flat, t, y, u)
     NS.assert_close(f"ekf (max_step {max_step})", est, ref, TOL)
     assert np.abs(ref[:, 1] - ref[0, 1]).max() > 1.0       # a transient from q_dot = 0
@@ -106,7 +59,7 @@ def test_the_naive_prediction_is_the_exact_step_of_a_linear_plant():
     A = np.array([[0.0, 1.0], [-4.0, -0.4]])
     b = np.array([0.3, -1.0])
     x0, P0, Qc, dt = np.array([1.0, -2.0]), np.diag([0.5, 0.2]), np.diag([0.0, 0.3]), 0.05
-    x1, P1 = predict(x0, P0, None, dt, Qc, lambda x, u: A @ x + b, lambda x, u: A)
+    x1, P1 = NE.predict(x0, P0, None, dt, Qc, lambda x, u: A @ x + b, lambda x, u: A)
     Maff = np.zeros((3, 3))
     Maff[:2, :2], Maff[:2, 2] = A, b
     assert np.allclose(x1, (expm(Maff * dt) @ np.append(x0, 1.0))[:2], rtol=1e-13, atol=1e-14)
