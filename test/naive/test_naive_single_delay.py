@@ -1,15 +1,17 @@
 """Naive references of ``single_delay`` (Mazenc & Malisoff 2022), both forms, against the
 package through the runner at every sample (naive_single_delay.py has the equations).
 
-Continuous form (Theorem 1), config/dc_motor_single_delay.yaml (k = 100, tau = 0.1) and a
-second tuning (k = 200, tau = 0.05).  Both sides solve the extension (7) exactly with
+Continuous form (Theorem 1), config/dc_motor_single_delay.yaml (k = 100, tau = 0.1) and two
+more tunings (k = 200, tau = 0.05; k = 100, tau = 0.02).  Both sides solve the extension (7) exactly with
 (F1, F2, Y) linear between the 1 kHz samples, and read the delayed values at a sample
 (tau is a whole number of periods).  Tolerance: TOL_CONT = 1e3 eps cond(S).  The estimate
-(13) is S^-1 applied to sums of the extension's states, so the rounding of S, N (the
+(13) is a sum of terms S^-1 (...) of the extension's states, so the rounding of S, N (the
 quadratures: 1e-14 relative here against the package's Gauss-Legendre) and of the
 exponentials (|Az h| <= 0.4: ~1e-15 each) comes out multiplied by cond(S) (1.4e5 for
-k = 100, tau = 0.1); 1e3 eps covers the sum of those relative errors over the terms of
-(13) (the brackets are up to ~50x the estimate: measured max |S^-1 psi terms| / scale).
+k = 100, tau = 0.1; 34 and 66 for the others) and by the size of the terms against the
+estimate's scale (measured: at most 0.7x, 16x and 26x); 1e3 eps covers those sizes and a
+few roundings per term.  Measured: 3.5e-12, 5.9e-14, 8.1e-14 against the bars 3e-8,
+7.5e-12, 1.5e-11.
 
 Sampled form (Theorem 2, eq. 39), config/dc_motor_single_delay_sampled.yaml on irregular
 stamps 1-2 ms apart: the reference solves (39) between the samples by DOP853 at rtol 1e-11
@@ -18,8 +20,8 @@ of ``substep``, the linear part exact, F and the delayed term by Heun's method: 
 order.  So the package's error is C h^2 + O(h^3), and its own runs at h and h/2 estimate it
 (Richardson): e(h) ~ 4/3 |x_h - x_h/2|.  The tolerance is that estimate, times 1.25 for the
 O(h^3) rest (measured: e(0.5 ms) = 4.81e-4 of the state's scale against the estimate
-4.77e-4; 1.24e-4 at 0.25 ms, 3.12e-5 at 0.125 ms: ratios 3.88, 3.97), and the error must
-shrink at least 3x when h halves (second order: 4x).  A wrong formula leaves an error
+4.77e-4; 1.24e-4 at 0.25 ms, 3.12e-5 at 0.125 ms: ratios 3.88, 3.97; at tau = 0.02:
+4.09e-3 against the estimate 5.19e-3, then 2.03e-4), and the error must shrink at least 3x when h halves (second order: 4x).  A wrong formula leaves an error
 that does not shrink with h, or one far above the package's own estimate.
 """
 from __future__ import annotations
