@@ -50,7 +50,8 @@ from ..core.command_line import one_line
 from ..core.output_dir import OutputIncomplete, abandon, check_output
 from ..plant.block import units_of
 from ..runner.params_file import load_params_files
-from ..runner.runner import LEVEL_NAMES, Runner
+from ..runner.runner import Runner
+from ..runner.status import LEVEL_NAMES
 from . import joint_metrics as JM
 from . import metrics as M
 from .run import _Run, _run
