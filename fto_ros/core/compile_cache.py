@@ -37,19 +37,7 @@ import numba
 from numba.core import caching as _nc
 
 from . import private_cache as PC
-from .errors import FtoRosError
-
-
-class _NoCache(FtoRosError):  # noqa: N818  (internal: no cache for this function)
-    pass
-
-
-class Damaged(PC.Untrusted):
-    """A cache file that cannot be used (its path and why)."""
-
-    def __init__(self, path: str, why: str):
-        super().__init__(f"{path}: {why}")
-        self.path, self.why = path, why
+from .errors import CacheError
 
 
 class _Locator(_nc._SourceFileBackedLocatorMixin, _nc._CacheLocator):
@@ -67,7 +55,7 @@ class _Locator(_nc._SourceFileBackedLocatorMixin, _nc._CacheLocator):
 
     def ensure_cache_path(self) -> None:
         if PC.folder(self._sub, top=self._top) is None:
-            raise OSError(f"the cache folder {self.get_cache_path()} is not usable")
+            raise CacheError(f"the cache folder {self.get_cache_path()} is not usable")
 
 
 class _Impl(_nc.CompileResultCacheImpl):
@@ -77,7 +65,7 @@ class _Impl(_nc.CompileResultCacheImpl):
         top = numba_folder()
         py_file = inspect.getfile(py_func)
         if top is None or not os.path.isfile(py_file):
-            raise _NoCache
+            raise CacheError(f"no disk cache for {py_file}")
         self._lineno = py_func.__code__.co_firstlineno
         self._locator = _Locator(py_func, py_file, top)
         module = os.path.splitext(os.path.basename(py_file))[0]
@@ -92,8 +80,8 @@ class _CheckedFile(_nc.IndexDataCacheFile):
     def _read(self, path: str):
         try:
             data = PC.read_file(Path(path))
-        except PC.Untrusted as err:
-            raise Damaged(path, str(err)) from None
+        except CacheError as err:
+            raise CacheError(err.why, path) from None
         return data
 
     def _load_index(self):
@@ -106,22 +94,22 @@ class _CheckedFile(_nc.IndexDataCacheFile):
             if version != self._version:
                 return {}           # another numba's: overwritten at the next save
             stamp, overloads = pickle.loads(stream.read())
-            if not isinstance(overloads, dict):
-                raise TypeError(f"an index of {type(overloads).__name__}")
         except Exception as err:    # noqa: BLE001  any unreadable index is damaged
-            raise Damaged(self._index_path, f"{type(err).__name__}: {err}") from None
+            raise CacheError(f"{type(err).__name__}: {err}", self._index_path) from None
+        if not isinstance(overloads, dict):
+            raise CacheError(f"an index of {type(overloads).__name__}", self._index_path)
         return overloads if stamp == self._source_stamp else {}
 
     def _load_data(self, name):
         path = self._data_path(name)
         data = self._read(path)
         if data is None:
-            raise FileNotFoundError(path)       # numba's load: not there, compile
+            return None                         # numba's load: not there, compile
         self.last_data = path
         try:
             return pickle.loads(data)
         except Exception as err:    # noqa: BLE001
-            raise Damaged(path, f"{type(err).__name__}: {err}") from None
+            raise CacheError(f"{type(err).__name__}: {err}", path) from None
 
     @contextlib.contextmanager
     def _open_for_write(self, filepath):
@@ -151,7 +139,7 @@ class PrivateCache(_nc.FunctionCache):
         self._cache_file.last_data = None
         try:
             return super().load_overload(sig, target_context)
-        except Damaged as err:
+        except CacheError as err:
             PC.discard(Path(err.path), err.why, "compiling again")
         except Exception as err:    # noqa: BLE001  numba could not rebuild what it read
             path = self._cache_file.last_data or self._cache_file._index_path
@@ -163,8 +151,9 @@ class PrivateCache(_nc.FunctionCache):
             return
         try:
             super().save_overload(sig, data)
-        except Damaged as err:                  # the index read before the save
-            PC.discard(Path(err.path), err.why, "compiling again")
+        except CacheError as err:       # the index read before the save, or no folder
+            if err.path is not None:
+                PC.discard(Path(err.path), err.why, "compiling again")
         except OSError as err:
             PC.stop_writing(f"cannot write numba's cache in {self._cache_path}: "
                             f"{err.strerror or err}")
@@ -184,6 +173,6 @@ def attach(dispatcher) -> bool:
     (the dispatcher keeps no disk cache) where there is none for its function."""
     try:
         dispatcher._cache = PrivateCache(dispatcher.py_func)
-    except (_NoCache, OSError):
+    except (CacheError, OSError):
         return False
     return True

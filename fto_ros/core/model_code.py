@@ -35,6 +35,7 @@ from sympy.printing.pycode import PythonCodePrinter
 
 from . import jit as J
 from . import private_cache as PC
+from .errors import CacheError
 
 _GROUPS = ("x", "y", "u")
 #: the sub-folder of the cache root that holds the generated modules
@@ -119,7 +120,7 @@ def _stored(name: str, source: str) -> Path | None:
     data = source.encode()
     try:
         held = PC.read_file(path)
-    except PC.Untrusted as err:
+    except CacheError as err:
         PC.discard(path, str(err))
         held = None
     if held is not None and held != data:

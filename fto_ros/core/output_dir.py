@@ -39,7 +39,7 @@ from typing import Iterable
 
 import yaml
 
-from .errors import FtoRosError
+from .errors import BadArgument, OutputError, OutputExists, OutputIncomplete  # noqa: F401
 
 #: the marker file every output folder gets when it is created
 MARKER = ".fto_ros_output"
@@ -60,18 +60,6 @@ KINDS: dict[str, tuple[tuple[str, ...], tuple[str, ...], dict[str, tuple[str, ..
 REPORT_TITLE = "# fto_ros: observer comparison"
 _MAX_MARKER_BYTES = 4096
 _MAX_METADATA_BYTES = 1 << 20
-
-
-class OutputError(FtoRosError, ValueError):
-    """An output path is refused (a bad argument: exit code 2)."""
-
-
-class OutputExists(FtoRosError, FileExistsError):
-    """The output exists and replacing it was not asked for."""
-
-
-class OutputIncomplete(FtoRosError, OSError):
-    """An output could not be completed (exit code 1); the message says what became of it."""
 
 
 def _text(path) -> str:
@@ -206,7 +194,7 @@ def check_output(path, kind: str, *, overwrite: bool = False, inputs: Iterable =
     :class:`OutputExists` when it exists and ``overwrite`` is false.
     """
     if kind not in KINDS:
-        raise ValueError(f"unknown output kind {kind!r}")
+        raise BadArgument(f"unknown output kind {kind!r}")
     text = _text(path)
     out = Path(text)
     real = os.path.realpath(text)
@@ -247,7 +235,7 @@ def clear_output(path, kind: str, *, overwrite: bool = False, inputs: Iterable =
 def mark_output(folder, kind: str) -> None:
     """Write the marker into ``folder`` (just created by the caller)."""
     if kind not in KINDS:
-        raise ValueError(f"unknown output kind {kind!r}")
+        raise BadArgument(f"unknown output kind {kind!r}")
     (Path(folder) / MARKER).write_text(json.dumps({"written_by": "fto_ros", "kind": kind}) + "\n")
 
 

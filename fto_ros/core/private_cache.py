@@ -14,7 +14,7 @@ only, numba compiles without its disk cache).  There is no fallback folder in th
 temporary directory.
 
 Files are read with :func:`read_file` (no symlink followed; a regular file of this uid that
-nobody else may write, else :class:`Untrusted`) and written with :func:`write_file` (a temp
+nobody else may write, else :class:`~.errors.CacheError`) and written with :func:`write_file` (a temp
 file created exclusively, ``O_CREAT | O_EXCL | O_NOFOLLOW``, mode 0600, then renamed into
 place).  A write that fails (a full or read-only disk) stops every later write of the
 process, with one WARN line: the run goes on uncached, never fails for it.
@@ -31,7 +31,7 @@ import os
 import stat
 from pathlib import Path
 
-from .errors import FtoRosError
+from .errors import CacheError
 
 LOG = logging.getLogger("fto_ros.cache")
 
@@ -40,10 +40,6 @@ READWRITE, READONLY, OFF = "readwrite", "readonly", "off"
 MODES = (READWRITE, READONLY, OFF)
 #: largest cache file read (bytes): numba's data files are tens of kB
 MAX_FILE_BYTES = 64 << 20
-
-
-class Untrusted(FtoRosError):
-    """A cache file that is not this user's own private regular file (or cannot be read)."""
 
 
 class _State:
@@ -189,7 +185,7 @@ def stop_writing(why: str) -> None:
 
 
 def read_file(path: Path) -> bytes | None:
-    """The bytes of the cache file ``path``; None when there is none.  :class:`Untrusted`
+    """The bytes of the cache file ``path``; None when there is none.  :class:`~.errors.CacheError`
     for anything but a regular file of this uid that nobody else may write (a symlink is
     never followed), or one that cannot be read."""
     try:
@@ -197,27 +193,27 @@ def read_file(path: Path) -> bytes | None:
     except FileNotFoundError:
         return None
     except OSError as err:
-        raise Untrusted(f"cannot open it: {err.strerror or err}") from None
+        raise CacheError(f"cannot open it: {err.strerror or err}") from None
     try:
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
-            raise Untrusted("not a regular file")
+            raise CacheError("not a regular file")
         if st.st_uid != os.getuid():
-            raise Untrusted(f"owned by uid {st.st_uid}")
+            raise CacheError(f"owned by uid {st.st_uid}")
         if st.st_mode & (stat.S_IWGRP | stat.S_IWOTH):
-            raise Untrusted(f"writable by others (mode {stat.S_IMODE(st.st_mode):04o})")
+            raise CacheError(f"writable by others (mode {stat.S_IMODE(st.st_mode):04o})")
         if st.st_size > MAX_FILE_BYTES:
-            raise Untrusted(f"larger than {MAX_FILE_BYTES >> 20} MB")
+            raise CacheError(f"larger than {MAX_FILE_BYTES >> 20} MB")
         chunks = []
         while True:
             chunk = os.read(fd, 1 << 20)
             if not chunk:
                 return b"".join(chunks)
             chunks.append(chunk)
-    except Untrusted:
+    except CacheError:
         raise
     except OSError as err:
-        raise Untrusted(f"cannot read it: {err.strerror or err}") from None
+        raise CacheError(f"cannot read it: {err.strerror or err}") from None
     finally:
         os.close(fd)
 

@@ -43,14 +43,15 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _scheduler(text: str) -> str:
+    from ..core.errors import CommandLineError
     from .cluster import SCHEMES, EngineError, split_address
     if not re.fullmatch(r"[a-z][a-z0-9+.-]*://\S+", text):
-        raise argparse.ArgumentTypeError(f"expected a Dask scheduler address such as "
+        raise CommandLineError(f"expected a Dask scheduler address such as "
                                          f"tcp://HOST:8786, got {text!r}")
     try:
         split_address(text)
     except EngineError as err:
-        raise argparse.ArgumentTypeError(f"{err} ({'/'.join(SCHEMES)}://HOST:PORT)") from None
+        raise CommandLineError(f"{err} ({'/'.join(SCHEMES)}://HOST:PORT)") from None
     return text
 
 

@@ -19,17 +19,12 @@ import os
 import socket
 
 from ..core.command_line import one_line
-from ..core.errors import FtoRosError
+from ..core.errors import EngineError
 
 #: the address schemes of a Dask scheduler reached over the network
 SCHEMES = ("tcp", "tls", "ws", "wss")
 #: loggers of distributed and the libraries under it, whose lines the engine replaces
 _DASK_LOGGERS = ("distributed", "tornado", "asyncio")
-
-
-class EngineError(FtoRosError):
-    """The engine cannot run anything (scheduler unreachable, no worker, workers without
-    fto_ros, files the workers cannot see).  One line."""
 
 
 def split_address(address: str) -> tuple[str, str, int]:
@@ -64,30 +59,36 @@ def quiet_dask() -> None:
         log.propagate = False
 
 
-def reach(host: str, port: int, timeout: float) -> None:
-    """Open and close a TCP connection to ``host:port`` within ``timeout`` s, the name's
-    look-up included (a resolver that does not answer would block for longer): OSError."""
+def reach(address: str, timeout: float) -> None:
+    """Look the scheduler's name up and open (and close) a TCP connection to it, both
+    within ``timeout`` s (a resolver that does not answer would block for longer, a refused
+    port answers at once); EngineError in one line otherwise."""
     import threading
     import time
+    _scheme, host, port = split_address(address)
     box: dict = {}
 
     def resolve() -> None:
         try:
             box["addresses"] = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
         except OSError as err:
-            box["error"] = err
+            box["error"] = err.strerror or one_line(err)
     t0 = time.monotonic()
     helper = threading.Thread(target=resolve, name="fto-dask-resolve", daemon=True)
     helper.start()
     helper.join(timeout)
-    if "error" in box:
-        raise box["error"]
-    if "addresses" not in box:
-        raise TimeoutError(f"no answer for the name {host}")
-    family, kind, proto, _, where = box["addresses"][0]
-    with socket.socket(family, kind, proto) as sock:
-        sock.settimeout(max(timeout - (time.monotonic() - t0), 0.1))
-        sock.connect(where)
+    why = box.get("error") or (None if "addresses" in box else f"no answer for the name {host}")
+    if why is None:
+        family, kind, proto, _, where = box["addresses"][0]
+        try:
+            with socket.socket(family, kind, proto) as sock:
+                sock.settimeout(max(timeout - (time.monotonic() - t0), 0.1))
+                sock.connect(where)
+        except OSError as err:
+            why = "timed out" if isinstance(err, TimeoutError) else (err.strerror or one_line(err))
+    if why is not None:
+        raise EngineError(f"cannot connect to the Dask scheduler at {address}: {why} "
+                          f"(connect timeout {timeout:g} s)")
 
 
 def _handshake(address: str, timeout: float) -> None:

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
 from ..core.command_line import one_line
-from .cluster import EngineError, client, quiet_dask, reach, split_address
+from .cluster import EngineError, client, quiet_dask, reach
 
 #: seconds to wait for the scheduler to answer, and for a cluster to have a worker (the
 #: default of fto-sweep's --connect-timeout)
@@ -152,13 +152,7 @@ class Engine:
 
     def _connect(self) -> None:
         address, timeout = self.scheduler, self.connect_timeout
-        _scheme, host, port = split_address(address)
-        try:                     # refused, unreachable or unknown: one line within the timeout
-            reach(host, port, timeout)
-        except OSError as err:
-            why = "timed out" if isinstance(err, TimeoutError) else (err.strerror or one_line(err))
-            raise EngineError(f"cannot connect to the Dask scheduler at {address}: {why} "
-                              f"(connect timeout {timeout:g} s)") from None
+        reach(address, timeout)    # refused, unreachable, unknown: one line within the timeout
         quiet_dask()
         self.client = client(address, timeout)
         try:

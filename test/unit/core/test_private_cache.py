@@ -14,6 +14,7 @@ import pytest
 from cache_helpers import (OTHER_UID, cache_root, fail_writes, foreign,  # noqa: F401
                            warnings_of)
 from fto_ros.core import private_cache as PC
+from fto_ros.core.errors import CacheError
 
 
 def mode_of(path) -> int:
@@ -100,7 +101,7 @@ def test_only_own_private_regular_files_are_read(cache_root, tmp_path, spoil):
     else:
         path.unlink()
         path.mkdir()
-    with pytest.raises(PC.Untrusted):
+    with pytest.raises(CacheError):
         PC.read_file(path)
     assert PC.read_file(models / "absent.py") is None
 
