@@ -19,7 +19,7 @@ CONFIG = REPO / "config"
 #: imported first by the command's process: the cache disk of $FTO_ROS_CACHE fails
 INJECT = f"""
 import errno, os, sys
-sys.path.insert(0, {str(REPO / "test" / "unit" / "core")!r})
+sys.path.insert(0, {str(REPO / "test" / "support")!r})
 from cache_helpers import failing_calls
 for name, fake in failing_calls(getattr(errno, os.environ["FAIL_WITH"]),
                                 os.environ["FTO_ROS_CACHE"]).items():

@@ -63,7 +63,7 @@ def payload_source(marker: Path) -> str:
 def failing_calls(code: int, root) -> dict:
     """``os.open``, ``os.write`` and ``os.mkdir`` of a full disk (ENOSPC: the data does not
     fit) or a read-only one (EROFS: nothing may be created), for paths under ``root`` only
-    (the system tests install them in a command's process: test_cache_commands.py)."""
+    (test/system/test_cache_commands.py installs them in a command's process)."""
     real_open, real_write, real_mkdir = os.open, os.write, os.mkdir
     ours: set[int] = set()
 
