@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..core.output_dir import REPORT_TITLE, OutputError, check_output, create_output
+from ..core.output_dir import REPORT_TITLE, OutputError, abandon, check_output, create_output
 
 
 PROG = "fto-report"
@@ -436,7 +436,9 @@ def _main(args) -> int:
     try:
         report.write_text(markdown(pairs, notes, out, torque) + "\n")
     except OSError as err:
-        print(f"{PROG}: error: cannot write {report}: {err}", file=sys.stderr)
+        what = abandon(out, "report", f"{err.strerror or err}", keep=True)
+        print(f"{PROG}: error: cannot write {report}: {err.strerror or err}; {what}",
+              file=sys.stderr)
         return 1
     failed = [p for p in pairs if p.error]
     print(f"\nwrote {report}" + (f"; {len(failed)} of {len(pairs)} replay(s) FAILED" if failed

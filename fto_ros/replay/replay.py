@@ -46,7 +46,8 @@ from typing import Any
 import numpy as np
 
 from ..bag.writer import warm_up
-from ..core.output_dir import check_output
+from ..core.command_line import one_line
+from ..core.output_dir import OutputIncomplete, abandon, check_output
 from ..plant.block import units_of
 from ..runner.params_file import load_params_files
 from ..runner.runner import Runner
@@ -134,22 +135,27 @@ def replay(bag_path, params_path, out_dir, *, node_name: str | None = None,
     finally:
         if gc_was_enabled:
             gc.enable()
-    m0 = time.perf_counter()
-    metrics, plot_data = _metrics(runner, run, bag_path, params_path, out_dir, fqn, after,
-                                  tolerance)
-    metrics["params_files"] = [str(p) for p in params_paths]
-    metrics["overrides"] = dict(overrides or {})
-    metrics["timing_s"]["metrics"] = time.perf_counter() - m0
-    if plot:
-        p0 = time.perf_counter()
-        from .plot import plot_replay
-        units, ui_units, _ = units_of(flat)
-        plot_replay(out_dir / "replay.png", **plot_data, units=units, ui_units=ui_units,
-                    title=f"{obs.TYPE}: {params_path.name} on {bag_path.name}")
-        metrics["plot"] = "replay.png"
-        metrics["timing_s"]["plot"] = time.perf_counter() - p0
-    (out_dir / "metrics.json").write_text(
-        json.dumps(M.json_safe(metrics), indent=2, allow_nan=False) + "\n")
+    try:                   # the bag is written; an output without its metrics is none
+        m0 = time.perf_counter()
+        metrics, plot_data = _metrics(runner, run, bag_path, params_path, out_dir, fqn, after,
+                                      tolerance)
+        metrics["params_files"] = [str(p) for p in params_paths]
+        metrics["overrides"] = dict(overrides or {})
+        metrics["timing_s"]["metrics"] = time.perf_counter() - m0
+        if plot:
+            p0 = time.perf_counter()
+            from .plot import plot_replay
+            units, ui_units, _ = units_of(flat)
+            plot_replay(out_dir / "replay.png", **plot_data, units=units, ui_units=ui_units,
+                        title=f"{obs.TYPE}: {params_path.name} on {bag_path.name}")
+            metrics["plot"] = "replay.png"
+            metrics["timing_s"]["plot"] = time.perf_counter() - p0
+        (out_dir / "metrics.json").write_text(
+            json.dumps(M.json_safe(metrics), indent=2, allow_nan=False) + "\n")
+    except OSError as err:
+        what = abandon(out_dir, "bag", f"{err.strerror or err}")
+        raise OutputIncomplete(f"cannot complete the output {out_dir}: "
+                               f"{err.strerror or one_line(err)}; {what}") from None
     _check_accepted(metrics, min_accepted)
     return metrics
 
