@@ -1,5 +1,5 @@
 """Hypothesis's profile for the whole suite, and the fault-injection suite's totals
-(test/faultkit.py COUNTS: runner operations, command-line runs, live-node operations),
+(test/support/faultkit.py COUNTS: runner operations, command-line runs, live-node operations),
 printed in pytest's terminal summary, summed over pytest-xdist's worker processes when
 there are several."""
 from __future__ import annotations

@@ -18,7 +18,7 @@ from fto_ros.replay.topics import resolve_topic
 from fto_ros.runner import Runner
 from fto_ros.runner.params_file import load_params_files
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 #: seconds of each bag kept as the clean stream
 STREAM_SECONDS = 2.0
 

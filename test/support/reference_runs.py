@@ -9,7 +9,7 @@ replay made into the runner: per pair the status of every call, every STRIDE-th 
 of today's code is logged the same way (``log_replay``) and compared (``compare``).
 
 A deliberate change of behaviour records the pairs it changes again, and only those:
-``python test/reference_runs.py CONFIG_STEM ...`` (``regenerate``), said in the commit.
+``python test/support/reference_runs.py CONFIG_STEM ...`` (``regenerate``), said in the commit.
 Recorded again so far: the luenberger and ekf pairs (except cubic_escape_ekf and
 van_der_pol_ekf, unchanged), for their start from the first measurement (issue 19 item 18).
 """
@@ -27,7 +27,7 @@ from fto_ros.runner import loop as L
 from fto_ros.runner import runner as R
 from fto_ros.runner.legacy import LegacyRunner
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 REFERENCE = ROOT / "test" / "data" / "runner_reference.npz"
 
 
@@ -157,6 +157,6 @@ def regenerate(names: list[str]) -> list[str]:
 
 
 if __name__ == "__main__":
-    # python test/reference_runs.py CONFIG_STEM...: record those pairs again (see regenerate)
+    # python test/support/reference_runs.py CONFIG_STEM...: record those pairs again (see regenerate)
     import sys
     print(" ".join(regenerate(sys.argv[1:])))

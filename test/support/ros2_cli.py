@@ -24,7 +24,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 VENV = Path(sys.prefix)
 #: where install.sh puts the tools (inside the venv: cached with it)
 DEST = VENV / "ros2-tools"

@@ -21,7 +21,7 @@ import pytest
 
 pytestmark = [pytest.mark.slow, pytest.mark.live]   # live: it starts the installed node
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 PKG = 'fto_ros'
 # Every console script in setup.py must land in lib/fto_ros/ for `ros2 run`.
 EXECUTABLES = ['observer_node', 'fto-observer', 'fto-replay', 'fto-simulate',

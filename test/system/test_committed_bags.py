@@ -16,7 +16,7 @@ import pytest
 from fto_ros.cli import report
 from fto_ros.runner.plant_files import params_files
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 replay = importlib.import_module("fto_ros.replay.replay").replay
 
 PAIRS, _ = report.plan(ROOT / "bags", ROOT / "config")

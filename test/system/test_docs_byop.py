@@ -18,7 +18,7 @@ import pytest
 #: live DDS nodes: scripts/run-tests runs these after the rest, one at a time
 pytestmark = pytest.mark.live
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 DOC = ROOT / "docs" / "bring_your_own_plant.md"
 
 

@@ -30,7 +30,7 @@ from fto_ros.models.simulate import simulate, uniform_grid
 from fto_ros.replay import cli as replay_cli
 from fto_ros.runner.plant_files import is_plant_file, params_files
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXPLICIT = ROOT / "test" / "data" / "dc_motor_explicit"
 #: tuning files (run with their plant file, which a mutation may hit too) and explicit files
 CONFIGS = [c for c in sorted((ROOT / "config").glob("dc_motor_*.yaml")) if not is_plant_file(c)] + [

@@ -12,7 +12,7 @@ import pytest
 from fto_ros.observers import REGISTRY
 from fto_ros.runner.settings import SETTINGS
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PKG = ROOT / "fto_ros"
 
 #: layer -> top-level modules it must not import (docs/architecture.md, "Layers")

@@ -56,7 +56,7 @@ from std_srvs.srv import SetBool, Trigger  # noqa: E402
 #: live DDS nodes: scripts/run-tests runs these after the rest, one at a time
 pytestmark = pytest.mark.live
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CONFIG = ROOT / "test" / "data" / "dc_motor_explicit" / "dc_motor_luenberger.yaml"
 STATUS_NAME = "observer_node: observer"
 NODE = "/observer_node"

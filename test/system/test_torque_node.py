@@ -26,7 +26,7 @@ from fto_ros.core.reasons import CODE
 from fto_ros.runner.torque_loop import TorqueLoop
 from fto_ros.runner.torque_settings import build
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 URDF = ROOT / "urdf" / "arm7.urdf"
 JOINTS = [f"joint_a{i}" for i in range(1, 8)]
 BAG = ROOT / "bags" / "arm7_contact_link6"

@@ -16,7 +16,7 @@ from fto_ros.rigid import load_model
 from fto_ros.rigid.external_torque import (FiniteDifference, MomentumObserver, SampleRejected,
                                            WindowEstimator)
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 URDF = (ROOT / "urdf" / "arm7.urdf").read_text()
 JOINTS = [f"joint_a{i}" for i in range(1, 8)]
 

@@ -17,7 +17,7 @@ from fto_ros.rigid.collision import CollisionDetector, detection_time, threshold
 from fto_ros.rigid.external_torque import WindowEstimator, run_over
 from fto_ros.rigid.model import MAX_URDF_BYTES
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 URDF = ROOT / "urdf" / "arm7.urdf"
 JOINTS = [f"joint_a{i}" for i in range(1, 8)]
 G = 9.81

@@ -18,7 +18,7 @@ from fto_ros.core.output_dir import OutputError, OutputExists
 from fto_ros.models import get_model
 from fto_ros.models.simulate import simulate, uniform_grid
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 F64 = "std_msgs/msg/Float64MultiArray"
 JS = "sensor_msgs/msg/JointState"
 CLOCK = "rosgraph_msgs/msg/Clock"

@@ -7,7 +7,7 @@ import pytest
 
 from fto_ros.cli import design
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 PLANT = str(ROOT / "config" / "dc_motor_plant.yaml")
 
 

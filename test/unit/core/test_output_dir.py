@@ -13,7 +13,7 @@ import yaml
 from fto_ros.core.output_dir import (MARKER, REPORT_TITLE, OutputError, OutputExists,
                                      check_output, clear_output, create_output)
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def _bag_like(folder: Path, custom: dict | None) -> Path:

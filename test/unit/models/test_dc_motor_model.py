@@ -240,5 +240,5 @@ def test_models_layer_imports_no_ros():
     code = ("import sys, fto_ros.models, fto_ros.models.simulate, fto_ros.models.dc_motor; "
             "bad = [m for m in ('rclpy', 'rosbags') if m in sys.modules]; "
             "sys.exit(1 if bad else 0)")
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[3]
     assert subprocess.run([sys.executable, "-c", code], cwd=root).returncode == 0

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 FAMILIES = ("prescribed_time", "global_norm", "high_gain")
 T_END = 9.0
 
@@ -185,7 +185,7 @@ def run_all(path: str) -> None:
 def _side(tmp_path: Path, numba: bool) -> dict:
     path = tmp_path / f"numba{int(numba)}.npz"
     env = dict(os.environ, FTO_ROS_NUMBA="1" if numba else "0", PYTHONHASHSEED="0")
-    code = (f"import sys; sys.path[:0] = [{str(ROOT / 'test')!r}, {str(ROOT)!r}]; "
+    code = (f"import sys; sys.path[:0] = [{str(Path(__file__).parent)!r}, {str(ROOT / 'test' / 'support')!r}, {str(ROOT)!r}]; "
             f"import test_compiled_paths as m; m.run_all({str(path)!r})")
     subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, check=True, timeout=3600)
     return dict(np.load(path))

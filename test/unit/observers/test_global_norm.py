@@ -20,7 +20,7 @@ from fto_ros.observers.global_norm import (GlobalNormObserver, companion_expm, c
 from fto_ros.observers.high_gain import HighGainObserver
 from fto_ros.runner.settings import load_params_file
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 CUBIC = dict(f="-x1 + y**3", gamma_1="5*y**2 + y**6",
              gamma_hat="1 + (1 + 2*sqrt(2))*sqrt(4*w + 2) + (4*w + 2)**1.5")
 VDP = dict(f="(1 - y**2)*x1 - y", gamma_1="y**2", gamma_hat="4 + 4*w")

@@ -423,7 +423,7 @@ def test_configs_load(name):
     from fto_ros.runner.runner import Runner
     from fto_ros.runner.plant_files import params_files
     from fto_ros.runner.settings import load_params_files
-    root = Path(__file__).resolve().parent.parent
+    root = Path(__file__).resolve().parents[3]
     r = Runner(load_params_files(params_files(root / "config" / f"{name}.yaml")))
     assert r.observer.TYPE == "hosm"
     assert r.observer.n_inputs == (1 if name.startswith("dc") else 0)
@@ -434,7 +434,7 @@ def test_replay_dc_motor_load_reports_unknown_input_errors(tmp_path):
 
     from fto_ros.replay.replay import replay
     from fto_ros.runner.plant_files import params_files
-    root = Path(__file__).resolve().parent.parent
+    root = Path(__file__).resolve().parents[3]
     m = replay(root / "bags" / "dc_motor_load", params_files(root / "config" / "dc_motor_hosm.yaml"),
                tmp_path / "out", progress=False, plot=False, after=0.3)
     assert m["samples_rejected"] == 0
@@ -503,7 +503,7 @@ def test_below_the_noise_is_said():
 
 def test_fto_design_suggests_m_from_a_recording(capsys):
     from fto_ros.cli import design
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[3]
     rc = design.main([str(root / "config" / "dc_motor_plant.yaml"),
                       str(root / "config" / "dc_motor_hosm.yaml"),
                       str(root / "config" / "dc_motor_luenberger.yaml"),

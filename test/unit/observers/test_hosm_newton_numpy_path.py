@@ -20,7 +20,7 @@ import pytest
 
 from fto_ros.core import jit
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 #: (bag, config): every committed hosm and newton_inversion config
 PAIRS = [("dc_motor_load", "dc_motor_hosm"), ("fld_example1", "fld_example1_hosm"),
          ("fld_example2", "fld_example2_hosm"), ("msd_disturbed", "msd_hosm"),

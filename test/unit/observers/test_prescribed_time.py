@@ -56,7 +56,7 @@ from fto_ros.observers.prescribed_time import (PrescribedTimeObserver, c_matrix,
                                                p_bar, p_bar_closed_form)
 from fto_ros.runner import Runner, load_params_file
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 DI_CONFIG = ROOT / "config" / "double_integrator_prescribed_time.yaml"
 TO_CONFIG = ROOT / "config" / "third_order_prescribed_time.yaml"
 EPS_TRACK = 1e-3

@@ -19,6 +19,7 @@ _, META = RR.load_reference()
 PAIRS = list({p["params"][-1]: p for p in reversed(META["pairs"])
               if "single_delay" in p["params"][-1]}.values())
 HERE = Path(__file__).resolve().parent
+SUPPORT = HERE.parents[1] / "support"     # reference_runs, for the subprocess
 
 
 def replay_outputs(pairs) -> dict[str, np.ndarray]:
@@ -36,7 +37,7 @@ def test_compiled_and_numpy_paths_agree_on_every_committed_config(tmp_path):
     assert {p["params"][-1].rsplit("/", 1)[-1] for p in PAIRS} >= {
         "dc_motor_single_delay.yaml", "dc_motor_single_delay_sampled.yaml", "msd_single_delay.yaml"}
     other = tmp_path / "other.npz"
-    code = (f"import sys, json, numpy as np; sys.path.insert(0, {str(HERE)!r})\n"
+    code = (f"import sys, json, numpy as np; sys.path[:0] = [{str(HERE)!r}, {str(SUPPORT)!r}]\n"
             "from test_single_delay_paths import replay_outputs\n"
             "np.savez(sys.argv[2], **replay_outputs(json.loads(sys.argv[1])))\n")
     env = dict(os.environ, FTO_ROS_NUMBA="0" if jit.ENABLED else "1")

@@ -33,7 +33,7 @@ from fto_ros.replay.replay import replay
 from fto_ros.runner import Output, Runner
 from fto_ros.runner.params_file import load_params_files
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from bench_track import PLANT, TRACK, measure, run, simulate  # noqa: E402
 

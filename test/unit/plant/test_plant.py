@@ -19,7 +19,7 @@ from fto_ros.runner import Runner
 from fto_ros.runner.params_file import load_params_files
 from fto_ros.runner.plant_files import params_files, plant_file_for
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 DC = load_params_files([ROOT / "config" / "dc_motor_plant.yaml"])
 DC_PLANT = {k: v for k, v in DC.items() if k.startswith("plant.")}
 PENDULUM = {"plant.states": ["theta", "omega"], "plant.inputs": ["tau"],

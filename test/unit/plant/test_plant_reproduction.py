@@ -21,7 +21,7 @@ from fto_ros.runner import Runner
 from fto_ros.runner.params_file import load_params_files
 from fto_ros.runner.plant_files import plant_file_for, system_plant_file
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 EXPLICIT = ROOT / "test" / "data" / "dc_motor_explicit"
 ALL_PAIRS, _ = report.plan(ROOT / "bags", ROOT / "config")
 #: the pairs of the configs that existed before the plant block (dc_motor_ekf.yaml is new)

@@ -46,7 +46,7 @@ from fto_ros.runner.settings import load_params_file
 
 streams_module = importlib.import_module("fto_ros.replay.streams")
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 LUENBERGER = REPO / "test" / "data" / "dc_motor_explicit" / "dc_motor_luenberger_poles.yaml"  # poles -50..-70: the bounds below
 NS = "/dc_motor"
 RATE = 1000.0

@@ -17,7 +17,7 @@ from fto_ros.runner import Runner
 from fto_ros.runner.params_file import load_params_files
 from fto_ros.runner.plant_files import params_files
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def _bag(path: Path) -> Path:

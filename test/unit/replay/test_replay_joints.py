@@ -19,7 +19,7 @@ from fto_ros.runner.intake import JointIntake, joint_sample
 from fto_ros.runner.joints import OutputPlan
 from fto_ros.runner.params_file import load_params_files
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 PARAMS = [ROOT / "config" / "arm7_plant.yaml", ROOT / "config" / "arm7_luenberger.yaml"]
 JOINTS = [f"joint_a{i}" for i in range(1, 8)]
 N = 1500

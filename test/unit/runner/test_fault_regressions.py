@@ -29,7 +29,7 @@ from fto_ros.runner.params_file import load_params_files
 from fto_ros.runner.plant_files import params_files
 from fto_ros.runner.runner import HELD
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 SD = ROOT / "config" / "dc_motor_single_delay.yaml"
 #: fto-replay's --params for it: the DC motor's plant file, then this tuning file
 SD_ARGS = [a for p in params_files(SD) for a in ("--params", str(p))]

@@ -14,7 +14,7 @@ from fto_ros.core.reasons import CODE
 from fto_ros.runner import Runner
 from fto_ros.runner.params_file import load_params_files
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 A1 = [35.0, 30.0, 40.0]
 
 

@@ -19,7 +19,7 @@ from fto_ros.core.errors import ConfigError
 from fto_ros.runner.params_file import load_params_file, parse_override
 from fto_ros.runner.ros_yaml import MAX_ITEMS, _strtod, _strtoll, read_text
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 
 #: scalar spellings (each a parameter of its own in one file)
 SCALARS = [

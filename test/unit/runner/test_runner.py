@@ -25,7 +25,7 @@ from fto_ros.observers import kernel as kernel_protocol
 from fto_ros.observers.luenberger import kernel as luenberger_kernel
 from fto_ros.runner.runner import HELD
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 # the pole-placement Luenberger: its poles make the runner tests' expectations exact
 CONFIG = {name: load_params_file(ROOT / "test" / "data" / "dc_motor_explicit" / f"dc_motor_{file}.yaml")
           for name, file in (("luenberger", "luenberger_poles"), ("single_delay", "single_delay"),

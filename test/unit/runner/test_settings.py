@@ -13,7 +13,7 @@ from fto_ros.core.params import Param, matrix, resolve
 from fto_ros.runner import Runner, SETTINGS, load_params_file
 from fto_ros.runner import settings as S
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 LUENBERGER = ROOT / "test" / "data" / "dc_motor_explicit" / "dc_motor_luenberger.yaml"
 SINGLE_DELAY = ROOT / "test" / "data" / "dc_motor_explicit" / "dc_motor_single_delay.yaml"
 

@@ -23,7 +23,7 @@ from fto_ros.runner import Runner
 from fto_ros.runner.params_file import load_params_files
 from fto_ros.sweep import cli, engine as E, grid, results
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 NOMINAL = REPO / "bags" / "dc_motor_nominal"
 NOISY = REPO / "bags" / "dc_motor_noisy"
 SINGLE_DELAY = REPO / "test" / "data" / "dc_motor_explicit" / "dc_motor_single_delay.yaml"
