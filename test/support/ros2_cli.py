@@ -24,6 +24,8 @@ from pathlib import Path
 
 import pytest
 
+import processes
+
 ROOT = Path(__file__).resolve().parents[2]
 VENV = Path(sys.prefix)
 #: where install.sh puts the tools (inside the venv: cached with it)
@@ -123,8 +125,8 @@ def run(env: dict, *args: str, timeout: float = 60) -> subprocess.CompletedProce
     discovery before it looks the node up; on a loaded machine that can be too short
     ("Node not found"): then again, waiting 2 s, then 8 s."""
     for spin in (None, 2.0, 8.0):
-        res = subprocess.run(argv(*args, spin=spin), env=env, cwd=ROOT, stdout=subprocess.PIPE,
-                             stderr=subprocess.STDOUT, text=True, timeout=timeout)
+        res = processes.run(argv(*args, spin=spin), env=env, cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, timeout=timeout)
         if not (_direct(args) and res.stdout.strip() == "Node not found"):
             break
     return res

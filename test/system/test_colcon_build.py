@@ -19,6 +19,9 @@ from pathlib import Path
 
 import pytest
 
+import domains
+import processes
+
 pytestmark = [pytest.mark.slow, pytest.mark.live]   # live: it starts the installed node
 
 REPO = Path(__file__).resolve().parents[2]
@@ -29,10 +32,6 @@ EXECUTABLES = ['observer_node', 'fto-observer', 'fto-replay', 'fto-simulate',
 # Only what the build needs: no bags, tests, venv or old build output.
 NOT_COPIED = {'.git', '.venv', 'build', 'install', 'log', 'bags', 'benchmarks', 'test',
               'out', '.pytest_cache', '.hypothesis', '.ci'}
-# The node may start a DDS participant: keep it on this machine, and on a domain id of
-# its own (scripts/run-tests uses 1 + pid % 100; this is 50 away from it, in 1..100).
-ROS_ENV = {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
-           'ROS_DOMAIN_ID': str(1 + (os.getpid() + 50) % 100)}
 
 
 def _ignore(directory, names):
@@ -73,12 +72,16 @@ def workspace():
 
 
 def _sourced_run(ws, cmd, **kwargs):
-    """Run cmd after `source install/local_setup.bash`, this venv's python3 first on PATH."""
-    env = dict(os.environ, **ROS_ENV)
+    """Run cmd after `source install/local_setup.bash`, this venv's python3 first on PATH, in a
+    session of its own (test/support/processes.py); a node it starts stays on this machine,
+    on a domain id of the test's own."""
+    domain = domains.take()
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', ROS_DOMAIN_ID=str(domain))
     env['PATH'] = f'{Path(sys.executable).parent}{os.pathsep}{env["PATH"]}'
     env.pop('PYTHONPATH', None)
     script = 'source install/local_setup.bash && exec "$@"'
-    return subprocess.Popen(['bash', '-c', script, 'bash', *cmd], cwd=ws, env=env, **kwargs)
+    return processes.spawn(['bash', '-c', script, 'bash', *cmd], domain=domain, cwd=ws, env=env,
+                           **kwargs)
 
 
 def test_build_installs_ros_layout(workspace):
@@ -159,12 +162,9 @@ def test_installed_observer_node_starts(workspace):
             while time.monotonic() < deadline and proc.poll() is None:
                 time.sleep(0.1)
             running = proc.poll() is None
-            proc.send_signal(signal.SIGINT)
-            code = proc.wait(timeout=15)
+            code = processes.interrupt(proc, 15)     # Ctrl-C, then SIGKILL to the group
         finally:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
+            processes.interrupt(proc, 0)
         log.seek(0)
         out = log.read()
     assert running, f'observer_node exited with {proc.returncode} within 3 s:\n{out}'

@@ -7,13 +7,15 @@ from __future__ import annotations
 import json
 import os
 import re
-import subprocess
 import sys
 import threading
 from pathlib import Path
 
 import numpy as np
 import pytest
+
+import domains
+import processes
 
 #: live DDS nodes: scripts/run-tests runs these after the rest, one at a time
 pytestmark = pytest.mark.live
@@ -65,14 +67,14 @@ class Listener:
 
 @pytest.mark.slow
 def test_the_tutorial_runs_as_written(tmp_path):
-    domain = 1 + (os.getpid() + 41) % 100
+    domain = domains.take()
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(domain),
                ROS_LOG_DIR=str(tmp_path / "ros_log"), OPENBLAS_NUM_THREADS="1",
                PATH=os.pathsep.join([str(Path(sys.executable).parent), os.environ["PATH"]]))
     listener = Listener(domain)
     try:
-        res = subprocess.run(["bash", "-c", commands()], cwd=tmp_path, env=env,
-                             capture_output=True, text=True, timeout=600)
+        res = processes.run(["bash", "-c", commands()], cwd=tmp_path, env=env,
+                            capture_output=True, timeout=600)
     finally:
         listener.close()
     out = res.stdout + res.stderr

@@ -23,6 +23,8 @@ import numpy as np
 import pytest
 import yaml
 
+import domains
+import processes
 from faultkit import COUNTS
 from fto_ros.bag import BagReader, BagWriter
 from fto_ros.models import dc_motor
@@ -283,11 +285,11 @@ def test_damaged_bags_through_fto_replay(short_bag, tmp_path, capsys):
 # -- the node refuses and accepts the same files, with the same message ----------------------------
 def _node_run(params: Path, tmp_path: Path) -> tuple[int, str]:
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               ROS_DOMAIN_ID=str(20 + os.getpid() % 60), ROS_LOG_DIR=str(tmp_path / "roslog"))
+               ROS_DOMAIN_ID=str(domains.take()), ROS_LOG_DIR=str(tmp_path / "roslog"))
     try:
-        res = subprocess.run([sys.executable, "-m", "fto_ros.nodes.observer_node", "--ros-args",
-                              "--params-file", str(params)], cwd=ROOT, env=env,
-                             capture_output=True, text=True, timeout=90)
+        res = processes.run([sys.executable, "-m", "fto_ros.nodes.observer_node", "--ros-args",
+                             "--params-file", str(params)], cwd=ROOT, env=env,
+                            capture_output=True, timeout=90)
     except subprocess.TimeoutExpired:
         # it started and ran: accepted (only files the replay refused come here, and the
         # node refuses them in ~2.5 s of CPU: the margin is for a loaded machine)

@@ -19,8 +19,10 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64MultiArray  # noqa: E402
 
-from test_node_live import (NODE, ROOT, Driver, NodeProcess, _count, _domain, _feed,  # noqa: E402
-                            _params_file, _ros_env, _simulate)
+import domains  # noqa: E402
+import live_node as L  # noqa: E402
+import processes  # noqa: E402
+from live_node import NODE, ROOT, Driver, NodeProcess  # noqa: E402
 
 #: live DDS nodes: scripts/run-tests runs these after the rest, one at a time
 pytestmark = pytest.mark.live
@@ -28,7 +30,7 @@ pytestmark = pytest.mark.live
 
 @pytest.fixture(scope="module")
 def plant():
-    return _simulate(1.5)
+    return L.simulate(1.5)
 
 
 def _stamped(driver):
@@ -55,8 +57,8 @@ def test_stamped_named_estimates_and_set_state(tmp_path, plant):
         p["joint_states"].update(input_joints=["joint1"], input_field="effort")
         p["diagnostics"].update(period=0.2, expected_rate=0.0)
         p["output"] = {"frame_id": "motor_link"}
-    domain = _domain(41)
-    node = NodeProcess(tmp_path, domain, _params_file(tmp_path, "iface", edit))
+    domain = domains.take()
+    node = NodeProcess(tmp_path, domain, L.params_file(tmp_path, "iface", edit))
     driver = Driver(domain)
     labels: list = []
     qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
@@ -98,7 +100,7 @@ def test_stamped_named_estimates_and_set_state(tmp_path, plant):
         res = driver.call(SetParameters, NODE + "/set_state",
                           _set_state_request(q=0.1, q_dot=-2.0, current=0.5)).results
         assert len(res) == 3 and all(r.successful for r in res), res
-        st = driver.status_where(lambda s: _count(s, "restarts: set_state") == 1, 10,
+        st = driver.status_where(lambda s: L.count(s, "restarts: set_state") == 1, 10,
                                  "the set_state restart counted", node)
         assert st is not None
         # ... or one double_array; refused when the length or a value is wrong
@@ -117,7 +119,7 @@ def test_stamped_named_estimates_and_set_state(tmp_path, plant):
         pub = driver.node.create_publisher(JointState, NODE + "/set_state", 10)
         driver.wait_for(lambda: pub.get_subscription_count() > 0, 10, "the set_state topic", node)
         pub.publish(JointState(name=["q", "q_dot", "current"], position=[0.3, 0.0, 0.0]))
-        st = driver.status_where(lambda s: _count(s, "restarts: set_state") == 3, 10,
+        st = driver.status_where(lambda s: L.count(s, "restarts: set_state") == 3, 10,
                                  "three set_state restarts counted", node)
         # the next sample starts from the given state: its estimate of the unmeasured states
         k0 = 400
@@ -155,8 +157,8 @@ def _state(driver) -> int:
 def test_managed_node_through_the_lifecycle_services(tmp_path, plant):
     def edit(p):
         p["diagnostics"].update(period=0.2, expected_rate=0.0)
-    domain = _domain(42)
-    params = _params_file(tmp_path, "managed", edit)
+    domain = domains.take()
+    params = L.params_file(tmp_path, "managed", edit)
     node = NodeProcess(tmp_path, domain, params, module="fto_ros.nodes.managed_node")
     driver = Driver(domain)
     try:
@@ -170,23 +172,23 @@ def test_managed_node_through_the_lifecycle_services(tmp_path, plant):
         assert _lifecycle(driver, Transition.TRANSITION_ACTIVATE)
         assert _state(driver) == State.PRIMARY_STATE_ACTIVE
         driver.wait_connected(node, [driver.pub_y, driver.pub_u])
-        _feed(driver, plant, 200)
-        st = driver.status_where(lambda s: _count(s, "samples accepted") >= 100, 15,
+        L.feed(driver, plant, 200)
+        st = driver.status_where(lambda s: L.count(s, "samples accepted") >= 100, 15,
                                  "accepted samples", node)
-        accepted = _count(st, "samples accepted")
+        accepted = L.count(st, "samples accepted")
         # deactivate: no outputs, the state kept
         assert _lifecycle(driver, Transition.TRANSITION_DEACTIVATE)
         assert _state(driver) == State.PRIMARY_STATE_INACTIVE
         driver.wait_for(lambda: driver.node.count_publishers(NODE + "/state_estimate") == 0, 10,
                         "the outputs gone", node)
         n_est = len(driver.got("state_estimate"))
-        _feed(driver, plant, 50, start=200)
+        L.feed(driver, plant, 50, start=200)
         assert len(driver.got("state_estimate")) == n_est
         # activate again: it goes on from where it was (no restart counted)
         assert _lifecycle(driver, Transition.TRANSITION_ACTIVATE)
         driver.wait_connected(node, [driver.pub_y, driver.pub_u])
-        _feed(driver, plant, 100, start=250)
-        st = driver.status_where(lambda s: _count(s, "samples accepted") > accepted + 50, 15,
+        L.feed(driver, plant, 100, start=250)
+        st = driver.status_where(lambda s: L.count(s, "samples accepted") > accepted + 50, 15,
                                  "samples after re-activation", node)
         assert not any(k.startswith("restarts:") for k in st["values"]), \
             {k: v for k, v in st["values"].items() if k.startswith(("restarts:", "rejected:"))}
@@ -213,12 +215,12 @@ def test_managed_node_autostart_and_a_bad_parameter(tmp_path, plant):
     def edit(p):
         p["autostart"] = True
         p["diagnostics"].update(period=0.2, expected_rate=0.0)
-    domain = _domain(43)
-    params = _params_file(tmp_path, "auto", edit)
-    env = _ros_env(domain, tmp_path)
-    proc = subprocess.Popen([sys.executable, "-m", "fto_ros.nodes.managed_node", "--ros-args",
-                             "--params-file", str(params)], cwd=ROOT, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    domain = domains.take()
+    params = L.params_file(tmp_path, "auto", edit)
+    env = L.ros_env(domain, tmp_path)
+    proc = processes.spawn([sys.executable, "-m", "fto_ros.nodes.managed_node", "--ros-args",
+                            "--params-file", str(params)], domain=domain, cwd=ROOT, env=env,
+                           stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
     driver = Driver(domain)
     try:
         driver.wait_for(lambda: driver.node.count_publishers(NODE + "/state_estimate") > 0, 30,
@@ -226,12 +228,11 @@ def test_managed_node_autostart_and_a_bad_parameter(tmp_path, plant):
         assert _state(driver) == State.PRIMARY_STATE_ACTIVE
     finally:
         driver.close()
-        proc.send_signal(2)
-        proc.wait(15)
-    bad = _params_file(tmp_path, "bad", lambda p: (edit(p), p["luenberger"].update(poles=[1.0, 2.0, 3.0])))
-    res = subprocess.run([sys.executable, "-m", "fto_ros.nodes.managed_node", "--ros-args",
-                          "--params-file", str(bad)], cwd=ROOT, env=env, capture_output=True,
-                         text=True, timeout=60)
+        processes.interrupt(proc, 15)
+    bad = L.params_file(tmp_path, "bad", lambda p: (edit(p), p["luenberger"].update(poles=[1.0, 2.0, 3.0])))
+    res = processes.run([sys.executable, "-m", "fto_ros.nodes.managed_node", "--ros-args",
+                         "--params-file", str(bad)], cwd=ROOT, env=env, capture_output=True,
+                        timeout=60)
     out = (res.stdout + res.stderr).strip()
     assert res.returncode == 2, out
     assert "luenberger.poles" in out and "Traceback" not in out, out

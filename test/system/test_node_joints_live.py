@@ -7,7 +7,8 @@ What must hold: every published joint value equals, bit for bit, the runner's
 a message best effort dropped is dropped for both); one joint's junk (a NaN position, a NaN
 effort, the joint missing) leaves the other joints' outputs exactly those of a run without
 the junk, is counted in that joint's own status, and drops that joint only from the output
-message.  The node runs as a subprocess exactly as a user starts it (test_node_live.py)."""
+message.  The node runs as a subprocess exactly as a user starts it (test/support/live_node.py,
+live_joints.py)."""
 from __future__ import annotations
 
 import math
@@ -15,84 +16,22 @@ import time
 
 import numpy as np
 import pytest
-import yaml
 
 rclpy = pytest.importorskip("rclpy")
-from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from rcl_interfaces.srv import SetParameters  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
-from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 
 from fto_ros.runner import Runner  # noqa: E402
 from fto_ros.runner.intake import JointIntake  # noqa: E402
 from fto_ros.runner.messages import stamp_seconds  # noqa: E402
 from fto_ros.runner.params_file import load_params_files  # noqa: E402
-from test_node_live import NODE, ROOT, Driver, NodeProcess, _domain, _pace, _stamp  # noqa: E402
+import domains  # noqa: E402
+import live_node as L  # noqa: E402
+from live_joints import JOINTS, JointDriver, connect, joint_params, start  # noqa: E402
+from live_node import NODE  # noqa: E402
 
 pytestmark = pytest.mark.live
-
-JOINTS = ["j1", "j2", "j3"]
-A1 = "a1=[35, 30, 40]"
-
-
-def joint_params(tmp, tuning: str, extra: dict | None = None) -> list:
-    """The params files of a 3-joint DC-motor arm (config/dc_motor_plant.yaml, a tuning
-    file, the per-joint settings)."""
-    own = {"source": "joint_states", "joints": JOINTS,
-           "plant": {"constants": ["b0=40", "b1=15", A1, "a2=1", "a3=36.4", "a4=200"]},
-           "joint_states": {"output_joints": []},
-           "estimated_joint_states": {"joint_names": [], "position_states": [],
-                                      "velocity_states": [], "effort_states": []},
-           "diagnostics": {"period": 0.2, "expected_rate": 0.0},
-           "qos": {"depth": 1000}}     # a loaded machine's node falls behind, loses none
-    for k, v in (extra or {}).items():
-        own.setdefault(k, {}).update(v) if isinstance(v, dict) else own.__setitem__(k, v)
-    path = tmp / "joints.yaml"
-    path.write_text(yaml.safe_dump({"observer_node": {"ros__parameters": own}}))
-    return [ROOT / "config/dc_motor_plant.yaml", ROOT / f"config/{tuning}.yaml", path]
-
-
-def start(tmp, files, domain):
-    args = []
-    for f in files:
-        args += ["--params-file", str(f)]
-    return NodeProcess(tmp, domain, None, *args)
-
-
-def connect(driver, node) -> None:
-    """Wait for the node (its first start builds and caches the kernels of the joints: up
-    to a minute on a loaded machine) and its outputs."""
-    driver.wait_for(lambda: driver.pub_js.get_subscription_count() > 0, 120,
-                    "the node's subscription", node)
-    driver.wait_connected(node, [driver.pub_js], outputs=("estimated_joint_states",))
-
-
-class JointDriver(Driver):
-    """The test's node, collecting whole output JointStates and every /diagnostics status."""
-
-    def __init__(self, domain):
-        super().__init__(domain, outputs=())
-        rel = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE)
-        for key in ("joint_out", "state_out", "diag_all"):
-            self.received[key] = []
-        self._collect(JointState, "joint_out", NODE + "/estimated_joint_states", rel,
-                      lambda m: (m.header.stamp.sec * 10**9 + m.header.stamp.nanosec, list(m.name),
-                                 np.array(m.position), np.array(m.velocity), np.array(m.effort)))
-        self._collect(DiagnosticArray, "diag_all", "/diagnostics", 100,
-                      lambda m: {st.name: dict({kv.key: kv.value for kv in st.values},
-                                               level=str(st.level[0]), message=st.message)
-                                 for st in m.status})
-
-    def joint_status(self, name: str, timeout=10.0) -> dict:
-        start = len(self.got("diag_all"))
-
-        def find():
-            for d in self.got("diag_all")[start:]:
-                if name in d:
-                    return d[name]
-            return None
-        return self.wait_for(find, timeout, f"the status {name}")
 
 
 def stream(n: int, base_ns: int, junk=None):
@@ -103,7 +42,7 @@ def stream(n: int, base_ns: int, junk=None):
         t = k * 1e-3
         order = [JOINTS[(k + i) % 3] for i in range(3)]
         m = JointState(name=order)
-        m.header.stamp = _stamp(base_ns + k * 10**6)
+        m.header.stamp = L.stamp(base_ns + k * 10**6)
         m.position = [0.4 * math.sin(2.0 * t + JOINTS.index(j)) for j in order]
         m.velocity = [0.0] * 3
         m.effort = [2.0 + math.sin(t + JOINTS.index(j)) for j in order]
@@ -154,7 +93,7 @@ JUNK = {200: ("j2", _set("position", "j2", math.nan)), 300: ("j3", _drop("j3")),
 @pytest.mark.parametrize("tuning", ["dc_motor_luenberger", "dc_motor_hosm"])
 def test_joint_outputs_equal_the_runner_and_junk_stays_in_its_joint(tmp_path, tuning):
     files = joint_params(tmp_path, tuning)
-    domain = _domain(41)
+    domain = domains.take()
     node = start(tmp_path, files, domain)
     driver = JointDriver(domain)
     n = 800
@@ -166,7 +105,7 @@ def test_joint_outputs_equal_the_runner_and_junk_stays_in_its_joint(tmp_path, tu
         t0 = time.monotonic()
         for k, m in enumerate(msgs):
             pub.publish(m)
-            _pace(k, t0, 500.0)
+            L.pace(k, t0, 500.0)
         last = base_ns + (n - 1) * 10**6
         driver.wait_for(lambda: any(o[0] >= last for o in driver.got("joint_out")), 15,
                         "the output of the last message", node)
@@ -226,7 +165,7 @@ def test_joint_outputs_equal_the_runner_and_junk_stays_in_its_joint(tmp_path, tu
 
 def test_set_state_per_joint(tmp_path):
     files = joint_params(tmp_path, "dc_motor_luenberger")
-    domain = _domain(43)
+    domain = domains.take()
     node = start(tmp_path, files, domain)
     driver = JointDriver(domain)
     try:

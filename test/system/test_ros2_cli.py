@@ -15,8 +15,9 @@ from sensor_msgs.msg import JointState  # noqa: E402
 
 import ros2_cli  # noqa: E402
 from faultkit import COUNTS  # noqa: E402
-from test_node_live import (NODE, ROOT, Driver, NodeProcess, _count, _domain, _feed,  # noqa: E402
-                            _params_file, _ros_env, _simulate)
+import domains  # noqa: E402
+import live_node as L  # noqa: E402
+from live_node import NODE, ROOT, Driver, NodeProcess  # noqa: E402
 
 #: live DDS nodes: scripts/run-tests runs these after the rest, one at a time
 pytestmark = [pytest.mark.live, pytest.mark.slow]
@@ -29,7 +30,7 @@ START_S = 90
 
 @pytest.fixture(scope="module")
 def plant():
-    return _simulate(1.0)
+    return L.simulate(1.0)
 
 
 @pytest.fixture(scope="module")
@@ -39,7 +40,7 @@ def prefix(tmp_path_factory):
 
 
 def _env(domain: int, tmp: Path, prefix: Path) -> dict:
-    return ros2_cli.env_for(_ros_env(domain, tmp), prefix)
+    return ros2_cli.env_for(L.ros_env(domain, tmp), prefix)
 
 
 def _launch(env: dict, tmp: Path, domain: int, *args: str) -> NodeProcess:
@@ -77,7 +78,7 @@ def _cases():
 def test_every_launch_file_starts_its_observer_under_ros2_launch(tmp_path, prefix, args, observer):
     """`ros2 launch fto_ros FILE` starts the node, which reports its observer on /diagnostics;
     Ctrl-C ends everything cleanly (exit 0, no traceback)."""
-    domain = _domain(61)
+    domain = domains.take()
     launch = _launch(_env(domain, tmp_path, prefix), tmp_path, domain, "fto_ros", *args)
     driver = Driver(domain, outputs=())
     try:
@@ -98,7 +99,7 @@ def test_ros2_param_dump_get_describe_and_set(tmp_path, prefix):
     declared without one: rclpy then answered no request naming them and dump printed {});
     a run-time change that cannot build an observer is refused with the reason by `ros2 param
     set` and the old observer runs on."""
-    domain = _domain(62)
+    domain = domains.take()
     env = _env(domain, tmp_path, prefix)
     node = NodeProcess(tmp_path, domain, CONFIG / "dc_motor_plant.yaml",
                        "--params-file", str(CONFIG / "dc_motor_single_delay.yaml"),
@@ -168,9 +169,9 @@ def test_ros2_lifecycle_drives_the_managed_node_and_configure_after_cleanup(tmp_
     cleanup), activate: estimates flow; a transition the state lacks, asked for by id through
     `ros2 service call` (which `ros2 lifecycle set` refuses before calling), is refused with a
     log line and the node lives on; shutdown ends in finalized."""
-    domain = _domain(63)
+    domain = domains.take()
     env = _env(domain, tmp_path, prefix)
-    params = _params_file(tmp_path, "managed", lambda p: p["diagnostics"].update(
+    params = L.params_file(tmp_path, "managed", lambda p: p["diagnostics"].update(
         period=0.2, expected_rate=0.0))
     launch = _launch(env, tmp_path, domain, "fto_ros", "observer.launch.py",
                      f"params_file:={params}", "managed:=true", "autostart:=false")
@@ -192,8 +193,8 @@ def test_ros2_lifecycle_drives_the_managed_node_and_configure_after_cleanup(tmp_
             assert _cli_state(env) == state, transition
             COUNTS["live_lifecycle_cli"] += 1
         driver.wait_connected(launch, [driver.pub_y, driver.pub_u])
-        _feed(driver, plant, 200)
-        st = driver.status_where(lambda s: _count(s, "samples accepted") >= 100, 20,
+        L.feed(driver, plant, 200)
+        st = driver.status_where(lambda s: L.count(s, "samples accepted") >= 100, 20,
                                  "estimates after configure-after-cleanup", launch)
         assert driver.got("state_estimate"), st
         res = ros2_cli.run(env, "lifecycle", "set", NODE, "shutdown")
@@ -211,7 +212,7 @@ def test_ros2_lifecycle_drives_the_managed_node_and_configure_after_cleanup(tmp_
 def test_state_stamped_frame_id_changes_at_run_time(tmp_path, prefix):
     """`ros2 param set output.frame_id` takes effect on the stamped outputs at once, without a
     restart; the publishers' QoS is overridable (read-only qos_overrides parameters)."""
-    domain = _domain(64)
+    domain = domains.take()
     env = _env(domain, tmp_path, prefix)
 
     def edit(p):
@@ -219,7 +220,7 @@ def test_state_stamped_frame_id_changes_at_run_time(tmp_path, prefix):
         p["joint_states"].update(input_joints=["joint1"], input_field="effort")
         p["diagnostics"].update(period=0.2, expected_rate=0.0)
         p["output"] = {"frame_id": "before"}
-    node = NodeProcess(tmp_path, domain, _params_file(tmp_path, "frame", edit),
+    node = NodeProcess(tmp_path, domain, L.params_file(tmp_path, "frame", edit),
                        "-p", f"qos_overrides.{NODE}/state_estimate_stamped.publisher.depth:=50")
     driver = Driver(domain, outputs=())
     frames: list = []

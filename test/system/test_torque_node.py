@@ -202,7 +202,10 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 
-from test_node_live import NodeProcess, _domain, _hold, _ros_env  # noqa: E402
+import domains  # noqa: E402
+import live_node as L  # noqa: E402
+import processes  # noqa: E402
+from live_node import NodeProcess  # noqa: E402
 
 NODE = "/external_torque_node"
 MODULE = "fto_ros.nodes.torque_node"
@@ -216,7 +219,7 @@ class Driver:
         self.ctx = rclpy.Context()
         rclpy.init(context=self.ctx, domain_id=domain)
         self.domain = domain
-        _hold(domain, 1)
+        domains.hold(domain)
         self.node = rclpy.create_node("fto_test_torque_driver", context=self.ctx)
         self.lock = threading.Lock()
         self.torque, self.collision, self.status = {}, [], {}
@@ -279,7 +282,7 @@ class Driver:
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.ctx)
         self.thread.join(5)
-        _hold(self.domain, -1)
+        domains.release(self.domain)
 
 
 def _node(tmp_path, domain, *params: str) -> NodeProcess:
@@ -294,7 +297,7 @@ def test_live_estimates_equal_offline_and_the_contact_is_published(tmp_path, arm
     the offline loop finds, never before; /diagnostics counts the junk per joint."""
     messages = _messages(arm_run)
     loop, offline, hits = _offline(messages)
-    domain = _domain(225)
+    domain = domains.take()
     node = _node(tmp_path, domain, f"plant.urdf:={URDF}", "collision.calibration:=0.5",
                  "diagnostics.period:=0.2")
     driver = Driver(domain)
@@ -353,9 +356,9 @@ def test_refusals_exit_2_with_one_line(tmp_path, params, names):
     bad = tmp_path / "bad.urdf"
     bad.write_text(BAD_URDF)
     args = [a for p in params for a in ("-p", p.format(bad=bad))]
-    res = subprocess.run([sys.executable, "-m", MODULE, "--ros-args", *args], cwd=ROOT,
-                         env=_ros_env(_domain(226), tmp_path), capture_output=True, text=True,
-                         timeout=120)
+    res = processes.run([sys.executable, "-m", MODULE, "--ros-args", *args], cwd=ROOT,
+                        env=L.ros_env(domains.take(), tmp_path), capture_output=True,
+                        stdin=subprocess.DEVNULL, timeout=120)
     lines = [ln for ln in (res.stdout + res.stderr).splitlines() if ln.strip()]
     assert res.returncode == 2, lines
     assert len(lines) == 1 and names in lines[0] and "bad parameter" in lines[0], lines
@@ -367,8 +370,8 @@ def test_launch_file_starts_the_node_under_ros2_launch(tmp_path):
     import ros2_cli
     ros2_cli.ros2_command()
     prefix = ros2_cli.ament_prefix(tmp_path / "prefix")
-    domain = _domain(227)
-    env = ros2_cli.env_for(_ros_env(domain, tmp_path), prefix)
+    domain = domains.take()
+    env = ros2_cli.env_for(L.ros_env(domain, tmp_path), prefix)
     launch = NodeProcess(tmp_path, domain, None, env=env, cmd=ros2_cli.argv(
         "launch", "fto_ros", "arm7_external_torque.launch.py", f"urdf:={URDF}"))
     driver = Driver(domain)
@@ -389,8 +392,8 @@ def test_autostart_false_waits_for_ros2_lifecycle(tmp_path):
     lifecycle set` configures and activates it; deactivate stops its /diagnostics."""
     import ros2_cli
     ros2_cli.ros2_command()
-    domain = _domain(227)
-    env = ros2_cli.env_for(_ros_env(domain, tmp_path), ros2_cli.ament_prefix(tmp_path / "p"))
+    domain = domains.take()
+    env = ros2_cli.env_for(L.ros_env(domain, tmp_path), ros2_cli.ament_prefix(tmp_path / "p"))
     node = _node(tmp_path, domain, f"plant.urdf:={URDF}", "autostart:=false",
                  "diagnostics.period:=0.2")
     driver = Driver(domain)

@@ -130,7 +130,7 @@ def test_decodes_with_rclpy_when_available(tmp_path):
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Float64MultiArray
     except ImportError as err:  # ROS libraries not loadable here
-        pytest.skip(f"rclpy messages unavailable: {err}")
+        pytest.skip(f"ROS piece missing: rclpy messages unavailable: {err}")
     from rosbags.rosbag2 import Reader
     types = {F64: Float64MultiArray, JS: JointState, CLOCK: Clock, DIAG: DiagnosticArray}
     path = tmp_path / "bag"

@@ -1,8 +1,8 @@
 """nodes/fast_io.py over DDS: the raw JointState intake equals rclpy's deserialisation field
 by field, the raw publisher's messages read back as the values given, under both executors.
 
-One process, one rclpy context per test (LOCALHOST discovery, the domain of
-ROS_DOMAIN_ID); the messages go through Fast DDS as between processes.
+One process, one rclpy context per test (LOCALHOST discovery, a domain id of the test's
+own: test/support/domains.py); the messages go through Fast DDS as between processes.
 """
 from __future__ import annotations
 
@@ -18,6 +18,8 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 
+import domains  # noqa: E402
+
 from fto_ros.nodes.fast_io import (EXECUTORS, JointStateIntake, JointStatePublisher,  # noqa: E402
                                    create_executor, message_info_callback, spin)
 
@@ -32,7 +34,7 @@ ARM = [f"joint_a{i}" for i in range(1, 8)]
 def ros():
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     ctx = rclpy.Context()
-    rclpy.init(context=ctx)
+    rclpy.init(context=ctx, domain_id=domains.take())
     node = rclpy.create_node("fast_io_test", context=ctx)
     yield ctx, node
     node.destroy_node()

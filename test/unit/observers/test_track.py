@@ -166,14 +166,16 @@ def test_refused_samples_leave_the_composition_untouched():
 @pytest.mark.slow
 def test_live_node_runs_the_composition(tmp_path):
     pytest.importorskip("rclpy")
-    from test_node_live import Driver, NodeProcess, _domain, _feed, _simulate
-    plant = _simulate(1.0)
-    domain = _domain(71)
+    import domains
+    import live_node as L
+    from live_node import Driver, NodeProcess
+    plant = L.simulate(1.0)
+    domain = domains.take()
     node = NodeProcess(tmp_path, domain, PLANT, "--params-file", str(TRACK))
     driver = Driver(domain, outputs=("state_estimate", "convergence"))
     try:
         driver.wait_connected(node, [driver.pub_y, driver.pub_u])
-        _feed(driver, plant, 400, rate=500.0)
+        L.feed(driver, plant, 400, rate=500.0)
         driver.wait_for(lambda: any(c[5] == 1.0 for c in driver.got("convergence")), 15,
                         "mode = tracking on convergence", node)
         conv = driver.got("convergence")[-1]

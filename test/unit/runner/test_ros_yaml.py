@@ -9,12 +9,13 @@ import ctypes.util
 import json
 import math
 import os
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
+import domains
+import processes
 from fto_ros.core.errors import ConfigError
 from fto_ros.runner.params_file import load_params_file, parse_override
 from fto_ros.runner.ros_yaml import MAX_ITEMS, _strtod, _strtoll, read_text
@@ -70,10 +71,10 @@ def rcl_read(path: Path) -> dict:
     """What a node started with ``--params-file path`` gets: {name: (type, value)}."""
     pytest.importorskip("rclpy")
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               ROS_DOMAIN_ID=os.environ.get("ROS_DOMAIN_ID", str(1 + os.getpid() % 100)),
+               ROS_DOMAIN_ID=str(domains.take()),
                ROS_LOG_DIR=str(path.parent / "roslog"))
-    res = subprocess.run([sys.executable, "-c", _RCL, str(path)], capture_output=True,
-                         text=True, timeout=60, env=env)
+    res = processes.run([sys.executable, "-c", _RCL, str(path)], capture_output=True,
+                        timeout=60, env=env)
     assert res.returncode == 0, res.stderr
     return json.loads(res.stdout.strip().splitlines()[-1])
 
