@@ -1,6 +1,10 @@
-"""The offline replay harness (`fto-replay`) and the comparison report (`fto-report`).
+"""The offline replay harness (`fto-replay`): its output bag, metrics and plot, the error after
+settling against a bound from the observer's matrices, determinism across processes, bad
+samples, the joint_states source, the node name, a bag without truth.  (Its fast paths:
+test_replay_fast_paths.py; metrics: test_replay_metrics.py; its command line:
+test_replay_cli.py; fto-report: test/unit/cli/test_report.py.)
 
-A 2 s, 1 kHz DC-motor bag (config/dc_motor_luenberger_poles.yaml's plant, x(0) = (0.5, -1, 0.2),
+The bag (test/support/replay_bags.py): a 2 s, 1 kHz DC-motor bag (config/dc_motor_luenberger_poles.yaml's plant, x(0) = (0.5, -1, 0.2),
 the model's default voltage profile, no noise) is simulated with fto_ros.models and
 written with fto_ros.bag.BagWriter: measured_output, input, joint_states (position = q,
 effort = V), true_state and /clock, all at the sample times.
@@ -20,37 +24,22 @@ the bound is (6e-6, 2.5e-4, 3e-3) for (q, q_dot, I); the replay measures
 """
 from __future__ import annotations
 
-import importlib
 import json
 import math
-import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
 
-from fto_ros.bag import BagReader, BagWriter
-from fto_ros.bag.cdr import Encoders, decode_float_arrays
-from fto_ros.bag.mcap_scan import NotFast, read_raw
+from fto_ros.bag import BagReader
 from fto_ros.core.errors import ConfigError
-from fto_ros.models import dc_motor, simulate
-from fto_ros.models.simulate import uniform_grid
-from fto_ros.replay import ReplayError, replay
-from fto_ros.replay import cli as replay_cli
-from fto_ros.replay import metrics as M
+from fto_ros.models import dc_motor
+from fto_ros.replay import replay
 from fto_ros.runner.runner import CONVERGENCE_FIELDS, Runner
 from fto_ros.runner.settings import load_params_file
-
-streams_module = importlib.import_module("fto_ros.replay.streams")
-
-REPO = Path(__file__).resolve().parents[3]
-LUENBERGER = REPO / "test" / "data" / "dc_motor_explicit" / "dc_motor_luenberger_poles.yaml"  # poles -50..-70: the bounds below
-NS = "/dc_motor"
-RATE = 1000.0
-DURATION = 2.0
+from replay_bags import DURATION, LUENBERGER, NS, RATE, read_topic, simulate_motor, write_bag
+from two_processes import assert_bitwise_equal, run_twice
 
 METRIC_FIELDS = {
     "schema", "bag", "params_file", "params_files", "overrides", "node_name", "observer_type",
@@ -66,39 +55,9 @@ METRIC_FIELDS = {
 }
 
 
-# ------------------------------------------------------------------ fixtures
 @pytest.fixture(scope="module")
 def sim():
-    t = uniform_grid(DURATION, RATE)
-    return simulate(dc_motor.make_rhs(), dc_motor.DEFAULT_X0, t, dc_motor.default_voltage,
-                    output=dc_motor.output)
-
-
-def write_bag(path: Path, sim, *, bad: bool = False, truth: bool = True,
-              measured_topic: str = f"{NS}/measured_output") -> Path:
-    """The test bag; ``bad`` adds a NaN and a wrong-length measurement, a repeated stamp
-    and a NaN input."""
-    ns_of = [int(round(t * 1e9)) for t in sim.t]
-    with BagWriter(path) as bag:
-        for k, t_ns in enumerate(ns_of):
-            bag.clock(t_ns)
-            u = sim.u[k]
-            y = sim.y[k]
-            if bad and k == 800:
-                u = [math.nan]
-            bag.float_array(f"{NS}/input", t_ns, u)
-            if bad and k == 500:
-                y = [math.nan]
-            elif bad and k == 600:
-                y = [float(sim.y[k][0]), 0.0]
-            bag.float_array(measured_topic, t_ns, y)
-            if bad and k == 700:
-                bag.float_array(measured_topic, t_ns, sim.y[k])  # same stamp again
-            bag.joint_state(f"{NS}/joint_states", t_ns, t_ns, ["joint1"], position=sim.y[k],
-                            effort=sim.u[k])
-            if truth:
-                bag.float_array(f"{NS}/true_state", t_ns, sim.x[k])
-    return path
+    return simulate_motor()
 
 
 @pytest.fixture(scope="module")
@@ -116,11 +75,6 @@ def run(bag, tmp_path_factory):
     out = tmp_path_factory.mktemp("replay") / "out"
     metrics = replay(bag, LUENBERGER, out, progress=False)
     return out, metrics
-
-
-def read_topic(path: Path, topic: str):
-    with BagReader(path) as b:
-        return [(t, msg) for _, t, msg in b.messages([topic])]
 
 
 # ------------------------------------------------------------------ outputs
@@ -284,15 +238,12 @@ def test_errors_after_settling_are_small(bag, sim, tmp_path):
     assert np.all(measured < [1e-4, 1e-3, 1e-2])
 
 
-def test_deterministic(bag, run, tmp_path):
-    out1, m1 = run
-    m2 = replay(bag, LUENBERGER, tmp_path / "again", progress=False, plot=False)
-    e1 = np.array([m.data for _, m in read_topic(out1, "/observer_node/state_estimate")])
-    e2 = np.array([m.data for _, m in read_topic(tmp_path / "again",
-                                                  "/observer_node/state_estimate")])
-    np.testing.assert_array_equal(e1, e2)
-    assert m1["errors"] == m2["errors"]
-    assert m1["convergence_time_s"] == m2["convergence_time_s"]
+def test_deterministic(bag, tmp_path):
+    """The same replay in two fresh processes (their own imports, caches and string-hash
+    seeds): the same estimates, convergence values and error metrics, bit for bit."""
+    a, b = run_twice("replay_bags:replay_estimates", str(bag), str(tmp_path))
+    assert a["estimate"].shape == (int(DURATION * RATE) + 1, 3)
+    assert assert_bitwise_equal(a, b) > 3 * len(a["estimate"])
 
 
 def test_bad_samples_are_rejected_and_counted(bad_bag, sim, tmp_path):
@@ -359,240 +310,3 @@ def test_no_truth_gives_metrics_without_errors(sim, tmp_path):
     assert "no ground truth" in m["errors_note"]
     assert m["samples_accepted"] == len(sim.t)
     assert (tmp_path / "out" / "replay.png").stat().st_size > 0
-
-
-# ------------------------------------------------------------------ fast paths
-def test_fast_reader_matches_bagreader(bad_bag):
-    topics = [f"{NS}/measured_output", f"{NS}/input", f"{NS}/true_state"]
-    fast = read_raw(Path(bad_bag), topics)
-    with BagReader(bad_bag) as b:
-        ts = b._typestore
-        for topic in topics:
-            ref = [(t, msg) for _, t, msg in b.messages([topic])]
-            t_fast, payloads = fast[topic]
-            assert t_fast.tolist() == [t for t, _ in ref]
-            vals = decode_float_arrays(payloads, ts)
-            for v, (_, msg) in zip(vals, ref):
-                np.testing.assert_array_equal(np.asarray(v, dtype=float), msg.data)
-
-
-def test_bagreader_fallback_gives_the_same_replay(bad_bag, tmp_path, monkeypatch):
-    """Bags the fast path does not take (SQLite3, file compression ...) go through BagReader."""
-    fast = replay(bad_bag, LUENBERGER, tmp_path / "fast", progress=False, plot=False)
-
-    def not_fast(*args):
-        raise NotFast("forced by the test")
-
-    monkeypatch.setattr(streams_module, "read_raw", not_fast)
-    slow = replay(bad_bag, LUENBERGER, tmp_path / "slow", progress=False, plot=False)
-    assert slow["reader"] == "rosbags BagReader (forced by the test)"
-    assert fast["reader"] == "MCAP fast path"
-    for key in ("samples_accepted", "rejected_by_reason", "errors", "convergence_time_s",
-                "output_topics"):
-        assert slow[key] == fast[key], key
-    for topic in ("/observer_node/state_estimate", f"{NS}/true_state"):
-        a = [(t, list(m.data)) for t, m in read_topic(tmp_path / "fast", topic)]
-        b = [(t, list(m.data)) for t, m in read_topic(tmp_path / "slow", topic)]
-        assert a == b, topic
-
-
-def test_all_samples_rejected(sim, tmp_path):
-    path = tmp_path / "allbad"
-    with BagWriter(path) as bag:
-        for k in range(50):
-            bag.float_array(f"{NS}/input", k * 10**6, [1.0])
-            bag.float_array(f"{NS}/measured_output", k * 10**6, [1.0, 2.0])
-            bag.float_array(f"{NS}/true_state", k * 10**6, [0.0, 0.0, 0.0])
-    # a replay that accepts nothing fails, after writing what it has (to look at)
-    with pytest.raises(ReplayError, match=r"no sample accepted of 50 \(rejected: "
-                                          r"measurement_wrong_length: 50\)"):
-        replay(path, LUENBERGER, tmp_path / "out", progress=False)
-    m = json.loads((tmp_path / "out" / "metrics.json").read_text())
-    assert m["samples_accepted"] == 0
-    assert m["rejected_by_reason"] == {"measurement_wrong_length": 50}
-    assert m["errors"] is None and "no accepted samples" in m["errors_note"]
-    assert m["final_status"]["level"] == "WARN"
-    assert (tmp_path / "out" / "replay.png").stat().st_size > 0
-
-
-def test_float_array_codec_matches_rosbags():
-    from fto_ros.bag.reader import jazzy_typestore
-    ts = jazzy_typestore()
-    enc = Encoders(ts)
-    for n in range(5):
-        for labels in (None, [f"x{i}" for i in range(n)], ["a"] * n):
-            x = np.linspace(-1.0, 2.0, n)
-            raw = enc.float_array(n, labels)(x)
-            assert raw == enc._rosbags_f64(x, labels)
-            assert decode_float_arrays([raw], ts) == [x.tolist()]
-            assert decode_float_arrays([raw, raw], ts) == [x.tolist()] * 2
-    assert enc.fallbacks == []
-    for frame in ("", "base_link", "odom_1"):
-        js = enc.joint_state(["a", "joint_12"], (2, 0, 2), frame)
-        assert js(5, 7, [1.0, 2.0], [], [3.0, 4.0]) == enc._rosbags_js(
-            ["a", "joint_12"], 5, 7, [1.0, 2.0], [], [3.0, 4.0], frame_id=frame)
-    assert enc.fallbacks == []
-
-
-# ------------------------------------------------------------------ metrics
-def test_match_truth_exact_interpolated_and_outside():
-    t_truth = np.array([10, 20, 30], dtype=np.int64)
-    x_truth = np.array([[0.0], [1.0], [3.0]])
-    mask, x = M.match_truth(np.array([5, 10, 15, 30, 31]), t_truth, x_truth)
-    assert mask.tolist() == [False, True, True, True, False]
-    assert x[1, 0] == 0.0 and x[2, 0] == 0.5 and x[3, 0] == 3.0
-    assert np.isnan(x[0, 0]) and np.isnan(x[4, 0])
-
-
-def test_convergence_time_definition():
-    t = np.array([0.0, 0.1, 0.2, 0.3, 0.4])
-    assert M.convergence_time(t, np.array([1, 0.001, 1, 0.001, 0.001]), 0.01) == 0.3
-    assert M.convergence_time(t, np.full(5, 0.001), 0.01) == 0.0
-    assert M.convergence_time(t, np.array([1, 0, 0, 0, 1.0]), 0.01) is None
-    assert M.convergence_time(t, np.array([1, 0, 0, np.nan, 0]), 0.01) == 0.4
-
-
-# ------------------------------------------------------------------ CLI
-def _cli(capsys, *argv):
-    rc = replay_cli.main(list(map(str, argv)))
-    cap = capsys.readouterr()
-    return rc, cap.out, cap.err
-
-
-def _one_error_line(err: str) -> str:
-    lines = err.strip().splitlines()
-    assert len(lines) == 1, err
-    assert lines[0].startswith("fto-replay: error: ")
-    assert "Traceback" not in err
-    return lines[0]
-
-
-def test_cli_success(bag, tmp_path, capsys):
-    rc, out, err = _cli(capsys, bag, "--params", LUENBERGER, "--out", tmp_path / "o",
-                        "--no-progress", "--tolerance", "0.05", "--after", "0.3")
-    assert rc == 0, err
-    assert "luenberger" in out and "real time" in out
-    m = json.loads((tmp_path / "o" / "metrics.json").read_text())
-    assert m["tolerance"] == 0.05 and m["settle_time_s"] == 0.3
-
-
-def test_cli_missing_bag(tmp_path, capsys):
-    rc, _, err = _cli(capsys, tmp_path / "nope", "--params", LUENBERGER, "--out", tmp_path / "o")
-    assert rc == 1
-    assert "nope" in _one_error_line(err)
-    assert not (tmp_path / "o").exists()
-
-
-def test_cli_not_a_bag(tmp_path, capsys):
-    (tmp_path / "junk").mkdir()
-    (tmp_path / "junk" / "metadata.yaml").write_text("garbage: [")
-    rc, _, err = _cli(capsys, tmp_path / "junk", "--params", LUENBERGER, "--out", tmp_path / "o")
-    assert rc == 1
-    _one_error_line(err)
-
-
-def test_cli_missing_params(bag, tmp_path, capsys):
-    rc, _, err = _cli(capsys, bag, "--params", tmp_path / "none.yaml", "--out", tmp_path / "o")
-    assert rc == 2                          # bad parameters (the node exits 2 for them too)
-    assert "none.yaml" in _one_error_line(err)
-
-
-def test_cli_unknown_parameter(bag, tmp_path, capsys):
-    doc = yaml.safe_load(LUENBERGER.read_text())
-    doc["observer_node"]["ros__parameters"]["luenberger"]["polse"] = [-1.0, -2.0, -3.0]
-    params = tmp_path / "typo.yaml"
-    params.write_text(yaml.safe_dump(doc))
-    rc, _, err = _cli(capsys, bag, "--params", params, "--out", tmp_path / "o")
-    assert rc == 2
-    line = _one_error_line(err)
-    assert "luenberger.polse" in line and "unknown parameter" in line
-
-
-def test_cli_existing_out_needs_overwrite(bag, tmp_path, capsys):
-    (tmp_path / "o").mkdir()
-    rc, _, err = _cli(capsys, bag, "--params", LUENBERGER, "--out", tmp_path / "o")
-    assert rc == 1
-    assert "exists" in _one_error_line(err) and "--overwrite" in err
-    rc, _, err = _cli(capsys, bag, "--params", LUENBERGER, "--out", tmp_path / "o",
-                      "--overwrite", "--no-progress")
-    assert rc == 0, err
-
-
-def test_cli_bag_without_the_measured_topic(sim, tmp_path, capsys):
-    bag = write_bag(tmp_path / "other", sim, measured_topic="/elsewhere/y")
-    rc, _, err = _cli(capsys, bag, "--params", LUENBERGER, "--out", tmp_path / "o")
-    assert rc == 1
-    line = _one_error_line(err)
-    assert "/dc_motor/measured_output" in line and "/elsewhere/y" in line
-
-
-def test_cli_usage_error(capsys):
-    with pytest.raises(SystemExit) as exc:
-        replay_cli.main(["only-a-bag"])
-    assert exc.value.code == 2
-    with pytest.raises(SystemExit) as exc:
-        replay_cli.main(["b", "--params", "p", "--out", "o", "--tolerance", "-1"])
-    assert exc.value.code == 2
-
-
-def test_library_argument_errors(bag, tmp_path):
-    with pytest.raises(ReplayError):
-        replay(bag, LUENBERGER, tmp_path / "o", tolerance=0)
-    with pytest.raises(ReplayError):
-        replay(bag, LUENBERGER, tmp_path / "o", after=-1.0)
-
-
-def test_console_script_as_subprocess(bag, tmp_path):
-    """`python -m fto_ros.replay.cli` exits 1 with one line, never a traceback."""
-    proc = subprocess.run([sys.executable, "-m", "fto_ros.replay.cli", str(tmp_path / "missing"),
-                           "--params", str(LUENBERGER), "--out", str(tmp_path / "o")],
-                          capture_output=True, text=True, cwd=REPO, timeout=120)
-    assert proc.returncode == 1
-    assert proc.stderr.startswith("fto-replay: error: ") and "Traceback" not in proc.stderr
-
-
-# ------------------------------------------------------------------ fto-report
-def test_report_plan_pairs_variants(tmp_path):
-    from fto_ros.cli import report
-    bags, cfg = tmp_path / "bags", tmp_path / "config"
-    for b in ("dc_motor_nominal", "dc_motor_noisy", "dc_motor_sampled"):
-        (bags / b).mkdir(parents=True)
-    cfg.mkdir()
-    for c in ("dc_motor_luenberger", "dc_motor_single_delay", "dc_motor_single_delay_sampled"):
-        shutil.copy(LUENBERGER, cfg / f"{c}.yaml")
-    doc = yaml.safe_load(LUENBERGER.read_text())
-    doc["observer_node"]["ros__parameters"]["observer"]["type"] = "not_an_observer_yet"
-    (cfg / "dc_motor_future.yaml").write_text(yaml.safe_dump(doc))
-    pairs, notes = report.plan(bags, cfg)
-    got = [(p.bag.name, p.config.name) for p in pairs]
-    assert got == [
-        ("dc_motor_nominal", "dc_motor_single_delay.yaml"),
-        ("dc_motor_nominal", "dc_motor_luenberger.yaml"),
-        ("dc_motor_noisy", "dc_motor_single_delay.yaml"),
-        ("dc_motor_noisy", "dc_motor_luenberger.yaml"),
-        ("dc_motor_sampled", "dc_motor_single_delay_sampled.yaml"),
-        ("dc_motor_sampled", "dc_motor_luenberger.yaml"),
-    ]
-    assert any("dc_motor_future.yaml" in n and "not_an_observer_yet" in n for n in notes)
-
-
-def test_report_runs_and_fails_on_a_missing_bag(bag, tmp_path, capsys):
-    from fto_ros.cli import report
-    bags, cfg, out = tmp_path / "bags", tmp_path / "config", tmp_path / "out"
-    bags.mkdir()
-    cfg.mkdir()
-    shutil.copytree(bag, bags / "dc_motor_nominal")  # dc_motor_noisy is missing
-    shutil.copy(LUENBERGER, cfg / "dc_motor_luenberger.yaml")
-    rc = report.main(["--out", str(out), "--bags-dir", str(bags), "--config-dir", str(cfg),
-                      "--no-progress"])
-    cap = capsys.readouterr()
-    assert rc == 1
-    assert "| dc_motor_nominal | luenberger (dc_motor_luenberger.yaml) | none |" in cap.out
-    assert "dc_motor_noisy" in cap.out and "FAILED" in cap.out
-    md = (out / "report.md").read_text()
-    assert "dc_motor_nominal__dc_motor_luenberger/replay.png" in md
-    assert (out / "dc_motor_nominal__dc_motor_luenberger" / "metrics.json").is_file()
-    # with both bags present it succeeds
-    shutil.copytree(bag, bags / "dc_motor_noisy")
-    assert report.main(["--out", str(out), "--bags-dir", str(bags), "--config-dir", str(cfg),
-                        "--no-progress"]) == 0
