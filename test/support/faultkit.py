@@ -43,7 +43,7 @@ def committed_configs() -> tuple[Config, ...]:
     """Every committed config of one observer (not per joint) with the bag the main job
     replays it on (its first one).  The per-joint configs (``joints: [...]``, the arm's)
     take a JointState stream these suites do not build: their junk is injected per joint by
-    test/test_replay_joints.py, test/test_node_joints_live.py and test_faults_live.py."""
+    test/unit/replay/test_replay_joints.py, test/system/test_node_joints_live.py and test_faults_live.py."""
     pairs, _ = plan(ROOT / "bags", ROOT / "config")
     pairs += plan_examples(ROOT / "bags", ROOT / "config")
     out: dict[str, Config] = {}

@@ -210,6 +210,51 @@ def test_nothing_cites_a_file_outside_the_repository():
     assert not citing, f"cite docs/ (architecture.md, the observer pages) instead: {citing}"
 
 
+#: a test file cited by its path (test/...py) or by its name (test_...py)
+_TEST_PATH = re.compile(r"(?<![\w./-])test/[\w/]+\.py\b")
+_TEST_NAME = re.compile(r"(?<![\w./-])(test_\w+\.py)\b")
+
+
+def test_cited_test_files_exist():
+    """A test file cited anywhere in the repository (docs, README, the package's comments,
+    benchmarks, scripts, the tests themselves), by its path or by its name, exists: when the
+    suite's layout changes (test/unit/<room>/, test/system/, test/support/), no sentence
+    sends a reader to a file that moved."""
+    names = {p.name for p in (ROOT / "test").rglob("*.py")}
+    stale = []
+    for path, text in _tracked_text_files():
+        where = path.relative_to(ROOT)
+        stale += [f"{where}: {m}" for m in _TEST_PATH.findall(text) if not (ROOT / m).is_file()]
+        stale += [f"{where}: {m}" for m in _TEST_NAME.findall(text) if m not in names]
+    assert not stale, f"cited test files that do not exist: {sorted(set(stale))}"
+
+
+#: test/unit/<room>/: a room per subpackage of fto_ros (arm: the rigid-body package's name
+#: from issue 27 on)
+ROOMS = {p.parent.name for p in PKG.glob("*/__init__.py")} | {"arm"}
+
+
+def test_the_suite_mirrors_the_package():
+    """test/unit/<room>/ (room: the fto_ros subpackage the file guards), test/system/ (whole
+    commands, live nodes), test/naive/ (slow references) and test/support/ (shared helpers, no
+    tests); no test file over 500 lines; every test file's name unique (pytest imports them
+    by name)."""
+    test = ROOT / "test"
+    files = [p for p in test.rglob("*.py") if "__pycache__" not in p.parts]
+    misplaced = [str(p.relative_to(test)) for p in files if p.name.startswith("test_") and not (
+        (p.parent.parent == test / "unit" and p.parent.name in ROOMS)
+        or p.parent in (test / "system", test / "naive"))]
+    assert not misplaced, f"test files outside test/unit/<room>/, system/, naive/: {misplaced}"
+    long = {str(p.relative_to(test)): n for p in files
+            if (n := len(p.read_text().splitlines())) > 500}
+    assert not long, f"test files over 500 lines: {long}"
+    seen: dict[str, list[str]] = {}
+    for p in files:
+        if p.name.startswith("test_"):
+            seen.setdefault(p.name, []).append(str(p.relative_to(test)))
+    assert not {k: v for k, v in seen.items() if len(v) > 1}, "test files named alike"
+
+
 MARKDOWN = [ROOT / "README.md", *sorted(DOCS.glob("*.md"))]
 
 

@@ -1,6 +1,6 @@
 """The node's ROS interface over DDS: stamped, named estimates; labelled arrays; set_state
 (service and topic); refusals that name the parameter; the managed (lifecycle) node driven
-through the lifecycle_msgs services.  Processes as in test_node_live.py (LOCALHOST
+through the lifecycle_msgs services.  Processes as in test/support/live_node.py (LOCALHOST
 discovery, a domain id of the test's own)."""
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """The package under the real ROS 2 Jazzy command line (test/support/ros2_cli.py): every launch file
 run by `ros2 launch`, the parameters through `ros2 param dump/get/describe/set`, the managed
 node through `ros2 lifecycle`.  Skipped, with the reason, where the tools' folder is absent.
-Processes as in test_node_live.py (LOCALHOST discovery, a domain id of the test's own); the
+Processes as in test/support/live_node.py (LOCALHOST discovery, a domain id of the test's own); the
 CLI never starts a ros2 daemon (--no-daemon)."""
 from __future__ import annotations
 

@@ -63,12 +63,32 @@ def test_dc_motor_linear_forms_and_models_as_text():
     assert n["constants"] == DC_PLANT["plant.constants"]
 
 
-@pytest.mark.parametrize("type_name", sorted(DERIVES))      # track composes, derives nothing
+#: per registered observer family, the plant its derivation is checked on (None: a
+#: composition of other families, which derives nothing itself); a family registered
+#: without an entry here fails test_each_derivation_gives_exactly_its_declared_parameters
+DERIVATION_PLANT = {"single_delay": DC_PLANT, "prescribed_time": DC_PLANT, "luenberger": DC_PLANT,
+                    "hosm": DC_PLANT, "newton_inversion": DC_PLANT, "ekf": DC_PLANT,
+                    "global_norm": PENDULUM, "high_gain": PENDULUM, "track": None}
+
+
+@pytest.mark.parametrize("type_name", sorted(REGISTRY))
 def test_each_derivation_gives_exactly_its_declared_parameters(type_name):
-    plant = PENDULUM if type_name in ("global_norm", "high_gain") else DC_PLANT
+    if type_name not in DERIVATION_PLANT:
+        pytest.fail(f"observer family {type_name!r} is registered but has no entry in "
+                    "DERIVATION_PLANT (test_plant.py): say which plant its derivation is "
+                    "checked on, or None for a composition")
+    plant = DERIVATION_PLANT[type_name]
+    if plant is None:                 # a composition: its children derive, it does not
+        assert type_name not in DERIVES
+        return
     d = derived(plant, type_name, k=100.0)
     assert set(d.params) == set(DERIVES[type_name])
     assert set(d.params) <= {p.name for p in REGISTRY[type_name].PARAMS}
+
+
+def test_the_derivation_table_names_registered_families_only():
+    assert set(DERIVATION_PLANT) <= set(REGISTRY), set(DERIVATION_PLANT) - set(REGISTRY)
+    assert set(DERIVES) <= set(REGISTRY), set(DERIVES) - set(REGISTRY)
 
 
 def flat_with(type_name, plant=PENDULUM, **params):
@@ -237,16 +257,35 @@ def test_plant_file_convention(tmp_path):
                                                            cfg / "sys_a_luenberger.yaml"]
 
 
-def test_every_observer_type_builds_from_the_plant_block_with_only_its_tuning():
-    tuning = {"single_delay": dict(k=10.0, tau=0.5), "prescribed_time": dict(T=1.0, l=[2.0, 1.0]),
-              "luenberger": dict(poles=[-5.0, -6.0]), "newton_inversion": {},
-              "global_norm": dict(conditions="warn"), "high_gain": {},
-              "ekf": dict(process_noise=[1.0, 1.0], measurement_noise=[1.0]),
-              "hosm": dict(poles=[-5.0, -6.0], M=[10.0])}
-    for type_name, values in tuning.items():
-        plant = dict(PENDULUM, **({"plant.unknown_inputs": ["d"],
-                                   "plant.f": ["omega", "-g/l*sin(theta) - c*omega + (tau + d)/J"]}
-                                  if type_name == "hosm" else {}))
-        obs = Runner(flat_with(type_name, plant, **{f"{type_name}__{k}": v
-                                                    for k, v in values.items()})).observer
-        assert obs.TYPE == type_name and obs.state_names == ["theta", "omega"], type_name
+#: per registered observer family, the tuning that builds it from the pendulum's plant block
+#: (``section.name``: value; a composition's children's sections too); a family registered
+#: without an entry here fails the test below, naming it
+TUNING = {
+    "single_delay": {"single_delay.k": 10.0, "single_delay.tau": 0.5},
+    "prescribed_time": {"prescribed_time.T": 1.0, "prescribed_time.l": [2.0, 1.0]},
+    "luenberger": {"luenberger.poles": [-5.0, -6.0]},
+    "newton_inversion": {},
+    "global_norm": {"global_norm.conditions": "warn"},
+    "high_gain": {},
+    "ekf": {"ekf.process_noise": [1.0, 1.0], "ekf.measurement_noise": [1.0]},
+    "hosm": {"hosm.poles": [-5.0, -6.0], "hosm.M": [10.0]},
+    "track": {"track.acquirer": "single_delay", "track.tracker": "ekf",
+              "single_delay.k": 10.0, "single_delay.tau": 0.5,
+              "ekf.process_noise": [1.0, 1.0], "ekf.measurement_noise": [1.0]},
+}
+
+
+@pytest.mark.parametrize("type_name", sorted(REGISTRY))
+def test_every_observer_type_builds_from_the_plant_block_with_only_its_tuning(type_name):
+    if type_name not in TUNING:
+        pytest.fail(f"observer family {type_name!r} is registered but has no entry in TUNING "
+                    "(test_plant.py): give the tuning that builds it from the plant block")
+    plant = dict(PENDULUM, **({"plant.unknown_inputs": ["d"],
+                               "plant.f": ["omega", "-g/l*sin(theta) - c*omega + (tau + d)/J"]}
+                              if type_name == "hosm" else {}))
+    obs = Runner(dict(flat_with(type_name, plant), **TUNING[type_name])).observer
+    assert obs.TYPE == type_name and obs.state_names == ["theta", "omega"], type_name
+
+
+def test_the_tuning_table_names_registered_families_only():
+    assert set(TUNING) <= set(REGISTRY), set(TUNING) - set(REGISTRY)
