@@ -80,7 +80,7 @@ def _members(pgid: int) -> bool:
 
 
 def kill_group(proc: subprocess.Popen) -> None:
-    """SIGKILL to the whole group, then wait for the leader."""
+    """SIGKILL to the whole group; wait for the leader and until no member runs."""
     try:
         os.killpg(proc.pid, signal.SIGKILL)
     except ProcessLookupError:
@@ -89,6 +89,7 @@ def kill_group(proc: subprocess.Popen) -> None:
         proc.wait(10)
     except subprocess.TimeoutExpired:
         pass
+    wait_gone(proc, 10)
 
 
 def interrupt(proc: subprocess.Popen, timeout: float = 30.0) -> int | None:
