@@ -11,6 +11,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from fto_ros.bag import BagReader, BagWriter
 from fto_ros.models import dc_motor, simulate
@@ -22,7 +23,6 @@ LUENBERGER = REPO / "test" / "data" / "dc_motor_explicit" / "dc_motor_luenberger
 NS = "/dc_motor"
 RATE = 1000.0
 DURATION = 2.0
-
 
 
 def simulate_motor():
@@ -59,7 +59,6 @@ def write_bag(path: Path, sim, *, bad: bool = False, truth: bool = True,
     return path
 
 
-
 def read_topic(path: Path, topic: str):
     with BagReader(path) as b:
         return [(t, msg) for _, t, msg in b.messages([topic])]
@@ -75,3 +74,30 @@ def replay_estimates(bag: str, folder: str) -> dict[str, np.ndarray]:
     return {"estimate": est, "convergence": conv,
             "errors": np.array(json.dumps(m["errors"], sort_keys=True)),
             "convergence_time_s": np.array(m["convergence_time_s"], dtype=float)}
+
+
+# -- fixtures (import them into a test module to use them) ------------------------------------
+@pytest.fixture(scope="module")
+def sim():
+    """The bag's samples (``simulate_motor``)."""
+    return simulate_motor()
+
+
+@pytest.fixture(scope="module")
+def bag(sim, tmp_path_factory):
+    """The clean bag."""
+    return write_bag(tmp_path_factory.mktemp("bags") / "dc_motor_test", sim)
+
+
+@pytest.fixture(scope="module")
+def bad_bag(sim, tmp_path_factory):
+    """The bag with a NaN and a wrong-length measurement, a repeated stamp, a NaN input."""
+    return write_bag(tmp_path_factory.mktemp("bags") / "dc_motor_bad", sim, bad=True)
+
+
+@pytest.fixture(scope="module")
+def run(bag, tmp_path_factory):
+    """(output folder, metrics) of the clean bag's replay with LUENBERGER."""
+    out = tmp_path_factory.mktemp("replay") / "out"
+    metrics = replay(bag, LUENBERGER, out, progress=False)
+    return out, metrics

@@ -13,6 +13,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from fto_ros.models import dc_motor
 from fto_ros.models.simulate import simulate, uniform_grid
@@ -143,3 +144,15 @@ def single_delay_run(n: int = 300) -> dict[str, np.ndarray]:
     return {"index": np.array(keys), "t": np.array([outs[i].t for i in keys]),
             "estimate": np.array([outs[i].estimate for i in keys]),
             "convergence": np.array([outs[i].convergence for i in keys])}
+
+
+@pytest.fixture(scope="module")
+def uniform() -> Stream:
+    """The fixture of ``uniform_stream`` (import it into a test module to use it)."""
+    return uniform_stream()
+
+
+@pytest.fixture(scope="module")
+def sparse() -> Stream:
+    """The fixture of ``sparse_stream``."""
+    return sparse_stream()

@@ -133,7 +133,6 @@ def _junk(ns: int, q: float, v: float, rng) -> tuple[str, JointState]:
     return kind, m
 
 
-
 # ------------------------------------------------------------ issue 20: the per-joint node
 #: junk of one joint inside a message that carries the others clean
 JOINT_JUNK = ("nan", "absurd", "missing_joint", "duplicate_joint", "nan_effort")

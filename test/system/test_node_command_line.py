@@ -90,7 +90,6 @@ def test_help_prints_usage():
     assert "usage: fto-observer" in res.stdout and "time.jump_threshold" in res.stdout
 
 
-
 def test_player_missing_bag_exits_1(tmp_path):
     res = processes.run([sys.executable, "-m", "fto_ros.nodes.player", str(tmp_path / "nope")],
                         cwd=ROOT, env=L.ros_env(domains.take(), tmp_path), capture_output=True,

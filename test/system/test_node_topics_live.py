@@ -43,7 +43,6 @@ def topics_node(tmp_path_factory):
     assert code == 0, node.log()
 
 
-
 def test_diagnostics_keys_level_and_hardware_id(topics_node, plant):
     node, driver = topics_node
     L.feed(driver, plant, 200)
@@ -142,7 +141,6 @@ def test_runtime_parameter_changes(topics_node):
     res = driver.set_parameter("source", "joint_states")
     assert not res.successful and "read-only" in res.reason, res.reason
     node.check_alive()
-
 
 
 @pytest.mark.slow

@@ -215,8 +215,6 @@ def test_failed_write_removes_half_written_bag(tmp_path):
     assert not path.exists()
 
 
-
-
 def test_bag_layer_imports_no_rclpy():
     code = ("import sys, fto_ros.bag, fto_ros.cli.simulate; "
             "sys.exit(1 if 'rclpy' in sys.modules else 0)")

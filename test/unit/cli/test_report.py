@@ -4,21 +4,10 @@ from __future__ import annotations
 
 import shutil
 
-import pytest
 import yaml
 
-from replay_bags import LUENBERGER, simulate_motor, write_bag
-
-
-
-@pytest.fixture(scope="module")
-def sim():
-    return simulate_motor()
-
-
-@pytest.fixture(scope="module")
-def bag(sim, tmp_path_factory):
-    return write_bag(tmp_path_factory.mktemp("bags") / "dc_motor_test", sim)
+from replay_bags import LUENBERGER
+from replay_bags import sim, bag  # noqa: F401 (fixtures)
 
 
 # ------------------------------------------------------------------ fto-report

@@ -140,8 +140,6 @@ def test_simulate_runs_as_module(tmp_path):
     assert proc.returncode == 2 and "unknown model" in proc.stderr and "dc_motor" in proc.stderr
 
 
-
-
 def test_simulate_cli_state_jump(tmp_path, capsys):
     """--state-jump: the state jumps by DELTA at T (the sample at T sees it), nothing else
     changes before T, the metadata records it; bad values are refused (exit 2)."""

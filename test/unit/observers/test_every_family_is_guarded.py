@@ -16,6 +16,7 @@ import pytest
 import reference_runs as RR
 from fto_ros.observers import REGISTRY
 from fto_ros.runner.params_file import load_params_files
+from registry_tables import expected
 
 HERE = Path(__file__).resolve().parent
 #: family -> the test (in test/unit/observers/) that compares its compiled kernels with the
@@ -57,11 +58,8 @@ def test_the_golden_master_runs_every_family(family, reference_families):
 
 @pytest.mark.parametrize("family", sorted(REGISTRY))
 def test_every_family_has_its_compiled_kernels_compared_with_the_numpy_path(family):
-    if family not in NUMPY_PATH:
-        pytest.fail(f"observer family {family!r} is registered but has no entry in NUMPY_PATH "
-                    "(test_every_family_is_guarded.py): name the test that compares its "
-                    "compiled kernels with the numpy path")
-    path = HERE / NUMPY_PATH[family]
+    path = HERE / expected(NUMPY_PATH, family, "NUMPY_PATH (test_every_family_is_guarded.py)",
+                           "the test that compares its compiled kernels with the numpy path")
     assert path.is_file(), f"{family}: {path} does not exist"
     assert family in path.read_text(), f"{path.name} does not name {family}"
 

@@ -26,7 +26,6 @@ def example1():
     return fld_traj(1, T1)
 
 
-
 # -- transactional updates -----------------------------------------------------------------------
 def test_bad_samples_rejected_state_untouched(example1):
     x, _ = example1

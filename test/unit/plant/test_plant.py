@@ -18,6 +18,7 @@ from fto_ros.plant.block import compiled
 from fto_ros.runner import Runner
 from fto_ros.runner.params_file import load_params_files
 from fto_ros.runner.plant_files import params_files, plant_file_for
+from registry_tables import expected
 
 ROOT = Path(__file__).resolve().parents[3]
 DC = load_params_files([ROOT / "config" / "dc_motor_plant.yaml"])
@@ -73,11 +74,8 @@ DERIVATION_PLANT = {"single_delay": DC_PLANT, "prescribed_time": DC_PLANT, "luen
 
 @pytest.mark.parametrize("type_name", sorted(REGISTRY))
 def test_each_derivation_gives_exactly_its_declared_parameters(type_name):
-    if type_name not in DERIVATION_PLANT:
-        pytest.fail(f"observer family {type_name!r} is registered but has no entry in "
-                    "DERIVATION_PLANT (test_plant.py): say which plant its derivation is "
-                    "checked on, or None for a composition")
-    plant = DERIVATION_PLANT[type_name]
+    plant = expected(DERIVATION_PLANT, type_name, "DERIVATION_PLANT (test_plant.py)",
+                     "the plant its derivation is checked on, or None for a composition")
     if plant is None:                 # a composition: its children derive, it does not
         assert type_name not in DERIVES
         return
@@ -277,13 +275,12 @@ TUNING = {
 
 @pytest.mark.parametrize("type_name", sorted(REGISTRY))
 def test_every_observer_type_builds_from_the_plant_block_with_only_its_tuning(type_name):
-    if type_name not in TUNING:
-        pytest.fail(f"observer family {type_name!r} is registered but has no entry in TUNING "
-                    "(test_plant.py): give the tuning that builds it from the plant block")
+    tuning = expected(TUNING, type_name, "TUNING (test_plant.py)",
+                      "the tuning that builds it from the plant block")
     plant = dict(PENDULUM, **({"plant.unknown_inputs": ["d"],
                                "plant.f": ["omega", "-g/l*sin(theta) - c*omega + (tau + d)/J"]}
                               if type_name == "hosm" else {}))
-    obs = Runner(dict(flat_with(type_name, plant), **TUNING[type_name])).observer
+    obs = Runner(dict(flat_with(type_name, plant), **tuning)).observer
     assert obs.TYPE == type_name and obs.state_names == ["theta", "omega"], type_name
 
 

@@ -38,7 +38,8 @@ from fto_ros.models import dc_motor
 from fto_ros.replay import replay
 from fto_ros.runner.runner import CONVERGENCE_FIELDS, Runner
 from fto_ros.runner.settings import load_params_file
-from replay_bags import DURATION, LUENBERGER, NS, RATE, read_topic, simulate_motor, write_bag
+from replay_bags import DURATION, LUENBERGER, NS, RATE, read_topic, write_bag
+from replay_bags import sim, bag, bad_bag, run  # noqa: F401 (fixtures)
 from two_processes import assert_bitwise_equal, run_twice
 
 METRIC_FIELDS = {
@@ -53,28 +54,6 @@ METRIC_FIELDS = {
     "reader", "serializer_fallbacks", "diagnostics_levels", "final_status",
     "observer_diagnostics",
 }
-
-
-@pytest.fixture(scope="module")
-def sim():
-    return simulate_motor()
-
-
-@pytest.fixture(scope="module")
-def bag(sim, tmp_path_factory):
-    return write_bag(tmp_path_factory.mktemp("bags") / "dc_motor_test", sim)
-
-
-@pytest.fixture(scope="module")
-def bad_bag(sim, tmp_path_factory):
-    return write_bag(tmp_path_factory.mktemp("bags") / "dc_motor_bad", sim, bad=True)
-
-
-@pytest.fixture(scope="module")
-def run(bag, tmp_path_factory):
-    out = tmp_path_factory.mktemp("replay") / "out"
-    metrics = replay(bag, LUENBERGER, out, progress=False)
-    return out, metrics
 
 
 # ------------------------------------------------------------------ outputs

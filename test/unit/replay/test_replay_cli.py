@@ -14,19 +14,10 @@ import yaml
 
 from fto_ros.replay import ReplayError, replay
 from fto_ros.replay import cli as replay_cli
-from replay_bags import LUENBERGER, simulate_motor, write_bag
+from replay_bags import LUENBERGER, write_bag
+from replay_bags import sim, bag  # noqa: F401 (fixtures)
 
 REPO = Path(__file__).resolve().parents[3]
-
-
-@pytest.fixture(scope="module")
-def sim():
-    return simulate_motor()
-
-
-@pytest.fixture(scope="module")
-def bag(sim, tmp_path_factory):
-    return write_bag(tmp_path_factory.mktemp("bags") / "dc_motor_test", sim)
 
 
 # ------------------------------------------------------------------ CLI

@@ -13,19 +13,10 @@ from fto_ros.bag import BagReader, BagWriter
 from fto_ros.bag.cdr import Encoders, decode_float_arrays
 from fto_ros.bag.mcap_scan import NotFast, read_raw
 from fto_ros.replay import ReplayError, replay
-from replay_bags import LUENBERGER, NS, read_topic, simulate_motor, write_bag
+from replay_bags import LUENBERGER, NS, read_topic
+from replay_bags import sim, bad_bag  # noqa: F401 (fixtures)
 
 streams_module = importlib.import_module("fto_ros.replay.streams")
-
-
-@pytest.fixture(scope="module")
-def sim():
-    return simulate_motor()
-
-
-@pytest.fixture(scope="module")
-def bad_bag(sim, tmp_path_factory):
-    return write_bag(tmp_path_factory.mktemp("bags") / "dc_motor_bad", sim, bad=True)
 
 
 # ------------------------------------------------------------------ fast paths

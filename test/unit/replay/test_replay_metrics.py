@@ -7,7 +7,6 @@ import numpy as np
 from fto_ros.replay import metrics as M
 
 
-
 # ------------------------------------------------------------------ metrics
 def test_match_truth_exact_interpolated_and_outside():
     t_truth = np.array([10, 20, 30], dtype=np.int64)

@@ -18,18 +18,9 @@ import pytest
 
 from fto_ros.runner import CONVERGENCE_FIELDS, Output
 from runner_streams import (CONTINUOUS, INF, NAN, check_finite, clean, drive, make, same_output,
-                            sparse_stream, stream_for, uniform_stream)
+                            stream_for)
+from runner_streams import uniform, sparse  # noqa: F401 (fixtures)
 from two_processes import assert_bitwise_equal, run_twice
-
-
-@pytest.fixture(scope="module")
-def uniform():
-    return uniform_stream()
-
-
-@pytest.fixture(scope="module")
-def sparse():
-    return sparse_stream()
 
 
 # -- clean runs: finite, convergent -----------------------------------------------------------------
@@ -93,8 +84,6 @@ def test_runner_is_deterministic():
     a, b = run_twice("runner_streams:single_delay_run", 300)
     assert len(a["index"]) == 300
     assert assert_bitwise_equal(a, b) > 300 * 8
-
-
 
 
 # -- rejections: exact reason, count, and no trace in the estimate -------------------------------------
@@ -263,8 +252,6 @@ def test_input_age_in_status(uniform):
     drive(r, uniform, 0, 10)
     assert dict(r.status(uniform.t[9] + 0.25).values)["input age (s)"] == "0.2500"
     assert dict(r.status(None).values)["input age (s)"] == "n/a"
-
-
 
 
 def test_observer_without_input(uniform):

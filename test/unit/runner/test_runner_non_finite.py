@@ -2,9 +2,7 @@
 published and restarts; a model term that overflows rejects its sample without poisoning
 the observer.
 
-The stream is the paper's DC-motor manipulator (Mazenc & Malisoff 2022, eq. 65) simulated
-with the ZOH simulator: q measured at 1 kHz, V at every sample (continuous configs), or q at
-irregular 1-2 ms instants with V at 1 kHz (sampled single_delay); test/support/runner_streams.py.
+On test_runner.py's simulated DC motor (test/support/runner_streams.py).
 """
 from __future__ import annotations
 
@@ -17,18 +15,8 @@ from fto_ros.core import jit
 from fto_ros.observers import kernel as kernel_protocol
 from fto_ros.observers.luenberger import kernel as luenberger_kernel
 from fto_ros.runner import ERROR, Output
-from runner_streams import (CONTINUOUS, check_finite, drive, make, same_output, sparse_stream,
-                            uniform_stream)
-
-
-@pytest.fixture(scope="module")
-def uniform():
-    return uniform_stream()
-
-
-@pytest.fixture(scope="module")
-def sparse():
-    return sparse_stream()
+from runner_streams import CONTINUOUS, check_finite, drive, make, same_output
+from runner_streams import uniform, sparse  # noqa: F401 (fixtures)
 
 
 _LUENBERGER = jit.kernel(luenberger_kernel.kernel, jit.KERNEL)
@@ -64,8 +52,6 @@ def test_observer_letting_nan_through_is_never_published(uniform):
     assert out[101].convergence[0] == 0.0
     for o in out.values():
         check_finite(o)
-
-
 
 
 # -- non-finite values from the model terms ----------------------------------------------------------------

@@ -1,9 +1,7 @@
 """The runner's restarts (time jumps, gaps, resets) and run-time reconfiguration: a restart
 gives exactly a fresh run's outputs; a refused change keeps the old observer.
 
-The stream is the paper's DC-motor manipulator (Mazenc & Malisoff 2022, eq. 65) simulated
-with the ZOH simulator: q measured at 1 kHz, V at every sample (continuous configs), or q at
-irregular 1-2 ms instants with V at 1 kHz (sampled single_delay); test/support/runner_streams.py.
+On test_runner.py's simulated DC motor (test/support/runner_streams.py).
 """
 from __future__ import annotations
 
@@ -13,18 +11,8 @@ import pytest
 from fto_ros.core.errors import ConfigError
 from fto_ros.runner import WARN, Output, Runner
 from fto_ros.runner.runner import HELD
-from runner_streams import (CONTINUOUS, clean, drive, flat, make, same_output, sparse_stream,
-                            stream_for, uniform_stream)
-
-
-@pytest.fixture(scope="module")
-def uniform():
-    return uniform_stream()
-
-
-@pytest.fixture(scope="module")
-def sparse():
-    return sparse_stream()
+from runner_streams import CONTINUOUS, clean, drive, flat, make, same_output, stream_for
+from runner_streams import uniform, sparse  # noqa: F401 (fixtures)
 
 
 # -- restarts ------------------------------------------------------------------------------------------
@@ -132,8 +120,6 @@ def test_reset_restarts(name, uniform, sparse):
         same_output(after[i], fresh[i])
     r.reset("custom")
     assert r.resets == {"service": 1, "custom": 1}
-
-
 
 
 # -- reconfigure -----------------------------------------------------------------------------------------

@@ -2,9 +2,7 @@
 advance matches the prediction, a measurement older than an applied input is refused, and a
 run-time change of k stays exact.
 
-The stream is the paper's DC-motor manipulator (Mazenc & Malisoff 2022, eq. 65) simulated
-with the ZOH simulator: q measured at 1 kHz, V at every sample (continuous configs), or q at
-irregular 1-2 ms instants with V at 1 kHz (sampled single_delay); test/support/runner_streams.py.
+On test_runner.py's simulated DC motor (test/support/runner_streams.py).
 """
 from __future__ import annotations
 
@@ -14,17 +12,8 @@ import numpy as np
 import pytest
 
 from fto_ros.runner import Output, Runner
-from runner_streams import drive, flat, make, sparse_stream, uniform_stream
-
-
-@pytest.fixture(scope="module")
-def uniform():
-    return uniform_stream()
-
-
-@pytest.fixture(scope="module")
-def sparse():
-    return sparse_stream()
+from runner_streams import drive, flat, make
+from runner_streams import uniform, sparse  # noqa: F401 (fixtures)
 
 
 # -- the sampled form's advance path ----------------------------------------------------------------------

@@ -1,9 +1,7 @@
 """The runner's status (levels, values, rates, restarts, single_delay's figures, the converged
 flag) and the estimated joint state built from the estimate.
 
-The stream is the paper's DC-motor manipulator (Mazenc & Malisoff 2022, eq. 65) simulated
-with the ZOH simulator: q measured at 1 kHz, V at every sample (continuous configs), or q at
-irregular 1-2 ms instants with V at 1 kHz (sampled single_delay); test/support/runner_streams.py.
+On test_runner.py's simulated DC motor (test/support/runner_streams.py).
 """
 from __future__ import annotations
 
@@ -13,12 +11,8 @@ import pytest
 
 from fto_ros.core.errors import ConfigError
 from fto_ros.runner import OK, WARN, Output
-from runner_streams import CONTINUOUS, NAN, clean, drive, make, uniform_stream
-
-
-@pytest.fixture(scope="module")
-def uniform():
-    return uniform_stream()
+from runner_streams import CONTINUOUS, NAN, clean, drive, make
+from runner_streams import uniform  # noqa: F401 (fixtures)
 
 
 # -- status -----------------------------------------------------------------------------------------------
@@ -145,8 +139,6 @@ def test_converged_flag_at_exactly_tau_despite_float_rounding(uniform):
     assert outs[700].convergence[0] < 0.1
     assert outs[700].convergence[2] == 1.0
     assert outs[699].convergence[2] == 0.0
-
-
 
 
 # -- estimated_joint_states ------------------------------------------------------------------------------
