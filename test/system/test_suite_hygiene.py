@@ -141,13 +141,14 @@ _TEST_SKIP = ("import pytest\n\n\ndef test_b():\n    pytest.importorskip('rclpy_
 def test_a_missing_ros_piece_fails_only_when_ros_is_required(tmp_path, required):
     """A module-level and a test-level importorskip of a ROS package, a skip saying a ROS
     piece is missing, and a skip for something else, under test/conftest.py's hooks."""
-    (tmp_path / "test_module_level.py").write_text(_MODULE_SKIP)
-    (tmp_path / "test_in_tests.py").write_text(_TEST_SKIP)
+    (tmp_path / "check_module_level.py").write_text(_MODULE_SKIP)
+    (tmp_path / "check_in_tests.py").write_text(_TEST_SKIP)
     env = dict(os.environ, FTO_ROS_REQUIRE_ROS=required,
                PYTHONPATH=os.pathsep.join([str(TEST), str(TEST / "support")]))
     res = subprocess.run([sys.executable, "-m", "pytest", "-p", "conftest", "-p", "no:cacheprovider",
                           "-p", "no:xdist", "-q", "-rfEs", "--rootdir", str(tmp_path),
-                          "--continue-on-collection-errors", str(tmp_path)],
+                          "-o", "python_files=check_*.py", "--continue-on-collection-errors",
+                          str(tmp_path)],
                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
     summary = res.stdout.strip().splitlines()[-1]
     if required == "1":
