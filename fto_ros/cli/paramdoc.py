@@ -3,7 +3,7 @@
 ``python -m fto_ros.cli.paramdoc`` prints the parameter tables;
 ``python -m fto_ros.cli.paramdoc --write docs/ros_interface.md`` puts them between the
 page's BEGIN and END marker lines, so the docs cannot drift from what the node declares
-(test/test_layers_and_docs.py fails while the page differs from this output).
+(test/system/test_layers_and_docs.py fails while the page differs from this output).
 """
 from __future__ import annotations
 
