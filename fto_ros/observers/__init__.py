@@ -14,6 +14,7 @@ from .high_gain import HighGainObserver
 from .hosm import HosmObserver
 from .newton_inversion import NewtonInversionObserver
 from .ekf import ExtendedKalmanFilter
+from .joint_kalman import JointKalmanFilter
 from .track import TrackObserver
 
 REGISTRY: dict[str, type[Observer]] = {
@@ -21,6 +22,7 @@ REGISTRY: dict[str, type[Observer]] = {
 }
 REGISTRY.update({cls.TYPE: cls for cls in (GlobalNormObserver, HighGainObserver)})
 REGISTRY[ExtendedKalmanFilter.TYPE] = ExtendedKalmanFilter
+REGISTRY[JointKalmanFilter.TYPE] = JointKalmanFilter
 REGISTRY[TrackObserver.TYPE] = TrackObserver
 
 

@@ -56,7 +56,9 @@ from ..ekf import ExtendedKalmanFilter
 
 P = "track."
 ACQUIRERS = ("single_delay", "prescribed_time", "hosm", "newton_inversion", "global_norm")
-TRACKERS = ("luenberger", "ekf")
+#: a tracker is a compiled Kalman filter: st[HEALTH] its NIS, ``R`` its per-sample
+#: measurement covariance, ``P0`` its (re)start covariance (settable: the hand-over's)
+TRACKERS = ("luenberger", "ekf", "joint_kalman")
 ACQUIRING, TRACKING, REACQUIRING = 0, 1, 2
 MODE_NAMES = {ACQUIRING: "acquiring", TRACKING: "tracking", REACQUIRING: "re-acquiring"}
 #: samples of measurement noise the acquirer's noise covariance is measured on (after its
@@ -225,7 +227,7 @@ class TrackObserver(Observer):
 
 def _kalman_tracker(cls: type[Observer], cfg: dict, sample_period: float) -> ExtendedKalmanFilter:
     """The tracker: the ekf as configured, or the Kalman filter of a luenberger section."""
-    if issubclass(cls, ExtendedKalmanFilter):
+    if cls.TYPE != "luenberger":                  # a Kalman filter already (TRACKERS)
         return cls(cfg)
     if cfg.get("design") != "kalman":
         raise ConfigError(P + "tracker", "a luenberger tracker needs luenberger.design: kalman "
