@@ -230,9 +230,10 @@ def tune(args: argparse.Namespace) -> dict[str, Any]:
     lines = [head]
     for j, name in enumerate(names):
         nb = [curve[max(best_i[j] - 1, 0), j], curve[min(best_i[j] + 1, coarse.size - 1), j]]
-        lines.append(f"{name:<14} {kn.shown(float(chosen[j]), j):<40} {best[j]:>18.4g} "
-                     f"{nb[0]:>10.4g} / {nb[1]:<10.4g}"
-                     + ("  (at the edge of the range)" if edge[j] else ""))
+        note = "  (at the edge of the range)" if edge[j] else \
+            "  (a neighbour refused by the observer)" if not np.all(np.isfinite(nb)) else ""
+        lines.append((f"{name:<14} {kn.shown(float(chosen[j]), j):<40} {best[j]:>18.4g} "
+                      f"{nb[0]:>10.4g} / {nb[1]:<10.4g}" + note).rstrip())
     table = "\n".join([f"{PROG}: {base.observer_type} on {args.bag}, score {args.score} "
                        f"(RMS, from {after:g} s), {coarse.size} + {REFINE} runs"] + lines)
     if joints:        # every override of the inputs kept, the tuned ones replaced

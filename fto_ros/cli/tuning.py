@@ -120,7 +120,7 @@ def override_text(name: str, per_joint: list[Any]) -> str:
     def fmt(v):
         if isinstance(v, list):
             return "[" + ", ".join(fmt(x) for x in v) + "]"
-        return repr(float(v))
+        return f"{float(v):.7g}"
     return f"{name}={fmt(per_joint)}"
 
 

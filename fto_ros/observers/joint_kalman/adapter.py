@@ -152,7 +152,14 @@ class JointKalmanFilter(KernelObserver):
 
     @property
     def nis(self) -> float:
+        """nu' S^-1 nu of the last update (nan before one)."""
         return self.health
+
+    @property
+    def nis_mean(self) -> float:
+        """The mean NIS since the (re)start (p when the noise settings fit the data)."""
+        updates = self._updates
+        return float(self._st[self._ic[kernel.ST_NIS_SUM]]) / updates if updates else math.nan
 
     def steady_state_std(self) -> np.ndarray:
         """sqrt of the steady-state posterior variances at the nominal period, per output and
@@ -171,8 +178,7 @@ class JointKalmanFilter(KernelObserver):
         return out
 
     def diagnostics(self):
-        updates = self._updates
-        mean = float(self._st[self._ic[kernel.ST_NIS_SUM]]) / updates if updates else math.nan
+        updates, mean = self._updates, self.nis_mean
         fmt = lambda v: ", ".join(f"{x:.4g}" for x in np.ravel(v))  # noqa: E731
         return {
             "model": f"integrator chain of order {self.order} per output (white "
