@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 JOINTS = [f"joint_a{i}" for i in range(1, 8)]
-TRAJECTORY, NOISE, JITTER, LOSS = 1, 2, 3, 4
+TRAJECTORY, NOISE, JITTER, LOSS, STAMP = 1, 2, 3, 4, 5
 SIGMA, RESOLUTION = 1e-5, 2.0 ** -18
 
 
@@ -55,9 +55,12 @@ def trajectory(t: np.ndarray, seed: int, joints: int, speed=None):
 
 def stream(seed: int, duration: float = 5.0, period: float = 1e-3, jitter: float = 50e-6,
            loss: float = 0.0, joints: int = 7, sigma: float = SIGMA,
-           resolution: float = RESOLUTION, speed=None, start: float = 1.0) -> Stream:
+           resolution: float = RESOLUTION, speed=None, start: float = 1.0,
+           stamp_noise: float = 0.0) -> Stream:
     """A stream of ``duration`` s at 1/period (see the module doc); stamps on the whole
-    microsecond (the observers' clock), from ``start`` s."""
+    microsecond (the observers' clock), from ``start`` s.  ``stamp_noise``: the stamps are
+    NOT the instants but off them by U(-stamp_noise, stamp_noise) (a driver stamping on
+    receipt); the truth stays at the instants, listed at the stamps."""
     k = np.arange(int(round(duration / period)))
     t = start + k * period
     if jitter > 0:
@@ -71,6 +74,11 @@ def stream(seed: int, duration: float = 5.0, period: float = 1e-3, jitter: float
     y = q + sigma * np.random.default_rng([seed, NOISE]).standard_normal(q.shape)
     if resolution > 0:
         y = np.round(y / resolution) * resolution
+    if stamp_noise > 0:
+        off = np.random.default_rng([seed, STAMP]).uniform(-stamp_noise, stamp_noise, t.size)
+        stamps = np.round((t + off) * 1e6) / 1e6
+        order = np.argsort(stamps, kind="stable")
+        t, y, q, v = stamps[order], y[order], q[order], v[order]
     return Stream(t, y, q, v)
 
 
@@ -90,11 +98,19 @@ def write_bag(path: Path, s: Stream, names=None) -> Path:
 
 def estimates(runner, s: Stream) -> tuple[np.ndarray, np.ndarray]:
     """(estimates (K, J, n), accepted (K, J)) of ``runner`` (per-joint or one joint) on the
-    stream's measurements, one compiled block."""
+    stream's measurements, one compiled block; an observer with an input gets u = 0 with
+    every sample (the motion is then its unknown input, the same for every stream)."""
     from fto_ros.runner import loop as L
     K, J = s.y.shape
-    blk = runner.process_block(np.full(K, L.MEASUREMENT, np.int8), s.t, s.y[:, :, None])
-    return blk.estimate, blk.status == L.OUTPUT
+    m = runner.observer.n_inputs
+    if not m:
+        blk = runner.process_block(np.full(K, L.MEASUREMENT, np.int8), s.t, s.y[:, :, None])
+        return blk.estimate, blk.status == L.OUTPUT
+    kind = np.tile(np.array([L.INPUT, L.PAIRED], np.int8), K)
+    vals = np.zeros((2 * K, J, max(m, 1)))
+    vals[1::2, :, 0] = s.y
+    blk = runner.process_block(kind, np.repeat(s.t, 2), vals)
+    return blk.estimate[1::2], blk.status[1::2] == L.OUTPUT
 
 
 def velocity_rms(runner, s: Stream, after: float = 0.5, velocity: int = 1) -> np.ndarray:
