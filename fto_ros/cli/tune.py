@@ -134,6 +134,11 @@ def check_output_file(path: str, inputs: Sequence[str], overwrite: bool) -> Path
     return Path(path)
 
 
+def _plain(v: Any) -> Any:
+    """Python floats (lists of them) for the YAML writer."""
+    return [_plain(x) for x in v] if isinstance(v, (list, tuple, np.ndarray)) else float(v)
+
+
 def _nested(flat: dict[str, Any]) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for key, value in flat.items():
@@ -239,7 +244,7 @@ def tune(args: argparse.Namespace) -> dict[str, Any]:
     if joints:        # every override of the inputs kept, the tuned ones replaced
         params = {JX.OVERRIDES: T.with_values(flat, joints, kn.apply(chosen))[JX.OVERRIDES]}
     else:
-        params = {name: v[0] for name, v in kn.apply(chosen).items()}
+        params = {name: _plain(v[0]) for name, v in kn.apply(chosen).items()}
     comment = [f"bag: {args.bag}", "params: " + ", ".join(args.params),
                f"score: {args.score} (RMS from {after:g} s); merge this file after them"] + lines
     return {"table": table, "params": params, "comment": comment, "chosen": chosen,
