@@ -126,7 +126,7 @@ def main(argv=None):
         else:
             run = simulate_arm(model, ArmSettings(duration=args.long, seed=21))
             if cache:
-                np.savez(cache, **run.__dict__)
+                np.savez(cache, **{k: v for k, v in run.__dict__.items() if v is not None})
         print(f"(long run ready in {time.perf_counter() - t0:.0f} s)", file=sys.stderr)
         dur = run.t[-1]
         print(f"\n{dur:.0f} s contact-free (seed 21), thresholds calibrated on [0.5, 2.5] s, "
