@@ -9,8 +9,8 @@ pooled over the joints; jittered / clean worst joint):
 
 | config | clean | +-50 us instants | + 0.2 % lost | stamps +-50 us off the instants |
 |---|---|---|---|---|
-| arm7_joint_kalman | 0.00157 | 0.00157 (1.003) | 0.00157 (1.003) | 0.0037 (2.3x) |
-| arm7_track_joint_kalman | 0.00157 | 0.00157 (1.003) | 0.00157 (1.003) | |
+| arm7_joint_kalman (60 Hz) | 0.00215 | 0.00215 (1.003) | 0.00215 (1.007) | 0.0027 (1.19x; at 100 Hz 2.3x) |
+| arm7_track_joint_kalman | 0.00213 | 0.00214 (1.006) | 0.00214 (1.007) | |
 | arm7_hosm | 0.00930 | 0.00930 (1.001) | 0.00930 (1.002) | 0.0169 (1.8x) |
 | arm7_luenberger | 0.00711 | 0.00710 (1.001) | 0.00711 (1.001) | 0.0122 (1.7x) |
 | arm7_ekf | 0.00770 | 0.00769 (1.001) | 0.00770 (1.001) | 0.0153 (2.0x) |
@@ -62,20 +62,22 @@ def test_jitter_and_losses_cost_under_ten_percent(config):
 
 def test_a_stamp_off_the_instant_is_what_costs():
     """The same motion, stamps +-50 us off the instants (measurements at the instants):
-    joint_kalman's error more than 1.5x the clean one (measured 2.3x), the backward
-    difference's too (pooled; measured 2.5x: 1.2x on the slowest joint, 3.6x on the
-    fastest, the error is q' d)."""
-    clean = rms("arm7_joint_kalman", jitter=0.0)
-    off = rms("arm7_joint_kalman", jitter=0.0, stamp_noise=50e-6)
-    assert math.sqrt(np.mean(off ** 2)) > 1.5 * math.sqrt(np.mean(clean ** 2))
+    hosm's error more than 1.5x the clean one (measured 1.8x), joint_kalman's more than 1.1x
+    (measured 1.19x at its 60 Hz, which averages the stamp error more than hosm), the
+    backward difference's more than 1.5x (pooled; measured 2.5x: 1.2x on the slowest joint,
+    3.6x on the fastest, the error is q' d)."""
+    for config, factor in (("arm7_hosm", 1.5), ("arm7_joint_kalman", 1.1)):
+        clean = rms(config, jitter=0.0)
+        off = rms(config, jitter=0.0, stamp_noise=50e-6)
+        assert math.sqrt(np.mean(off ** 2)) > factor * math.sqrt(np.mean(clean ** 2)), config
     bd = [JS.backward_difference_rms(JS.stream(1, jitter=0.0, stamp_noise=s)) for s in (0, 50e-6)]
     assert np.mean(bd[1] ** 2) > 1.5 ** 2 * np.mean(bd[0] ** 2)
 
 
 def test_the_model_free_filter_beats_the_backward_difference():
     """On every joint of the jittered, lossy stream: at most 0.5x the backward difference's
-    RMS error (measured 0.10-0.14x), the track composition as the filter alone after the
-    hand-over."""
+    RMS error (measured 0.04-0.30x at the configs' 60 Hz), the track composition as the
+    filter alone after the hand-over."""
     s = dict(jitter=50e-6, loss=0.002)
     bd = JS.backward_difference_rms(JS.stream(1, **s))
     for config in ("arm7_joint_kalman", "arm7_track_joint_kalman"):
