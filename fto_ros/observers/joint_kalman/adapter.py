@@ -17,7 +17,7 @@ import math
 import numpy as np
 
 from .. import kernel as K
-from ..base import ConfigError, KernelObserver, Param
+from ..base import ConfigError, KernelObserver, Param, RestartCovariance
 from . import design, kernel
 
 P = "joint_kalman."
@@ -42,7 +42,7 @@ def default_names(p: int, r: int) -> list[str]:
     return [b + _SUFFIX[k] for b in bases for k in range(r)]
 
 
-class JointKalmanFilter(KernelObserver):
+class JointKalmanFilter(RestartCovariance, KernelObserver):
     TYPE = "joint_kalman"
     KERNEL = kernel
     DESCRIPTION = ("model-free joint velocity baseline: a Kalman filter on an integrator chain "
@@ -114,17 +114,10 @@ class JointKalmanFilter(KernelObserver):
         return np.diag(self.variance)
 
     def _p0(self) -> np.ndarray:
+        """The (re)start covariance P0 in the constants (its diagonal blocks per output are
+        used)."""
         n, o = self.n_states, K.C_HEADER + 2 * self.n_outputs
         return self._c[o:o + n * n].reshape(n, n)
-
-    @property
-    def P0(self) -> np.ndarray:
-        """The (re)start covariance (a copy; its diagonal blocks per output are used)."""
-        return self._p0().copy()
-
-    @P0.setter
-    def P0(self, value) -> None:
-        self._p0()[:] = np.asarray(value, dtype=float).reshape(self.n_states, self.n_states)
 
     # -- outputs ------------------------------------------------------------------------------
     def _slice(self, which: int, size: int) -> np.ndarray:

@@ -140,3 +140,24 @@ def test_exit_codes_and_what_it_writes(bags, tmp_path, capsys):
         main([str(bag), "--out", str(tmp_path / "y.yaml")])
     assert err.value.code == 2
     assert sorted(p.name for p in tmp_path.iterdir()) == ["link.yaml", "mine.yaml", "own.yaml"]
+
+
+@pytest.mark.parametrize("tuning, entries", [("hosm", ("hosm.poles=", "hosm.M=")),
+                                             ("single_delay", ("single_delay.tau=",))])
+def test_the_gain_scale_of_the_guaranteed_time_families(bags, tmp_path, capsys, tuning, entries):
+    """hosm (poles x s, M x s^N) and single_delay (tau / s), per joint: a grid of 3 (0.05, 1,
+    20) and the refinement; hosm's scale 0.05 puts M below the paper's bound the config
+    checks (refused: the table says so), and the file's values reach each joint."""
+    bag, _, _ = bags
+    params = [ROOT / "config" / "arm7_plant.yaml", ROOT / "config" / f"arm7_{tuning}.yaml"]
+    out = tmp_path / "t.yaml"
+    rc = main([str(bag), *sum((["--params", str(p)] for p in params), []), "--out", str(out),
+               "--points", "3"])
+    printed = capsys.readouterr().out
+    assert rc == 0, printed
+    doc = yaml.safe_load(out.read_text())["/**"]["ros__parameters"]["joint_overrides"]
+    assert sorted(e.split("=")[0] + "=" for e in doc) == sorted(entries)
+    if tuning == "hosm":
+        assert "refused by the observer" in printed
+    runner = Runner(load_params_files(params + [out]))
+    assert runner.n_joints == 7
