@@ -51,7 +51,7 @@ sys.path.insert(0, str(ROOT))
 
 from fto_ros.cli.arm_bag import read_arm_bag  # noqa: E402
 from fto_ros.cli.simulate_arm import main as simulate_main  # noqa: E402
-from fto_ros.rigid.collision import CollisionDetector  # noqa: E402
+from fto_ros.arm.collision import CollisionDetector  # noqa: E402
 from fto_ros.runner.torque_loop import TorqueLoop  # noqa: E402
 from fto_ros.runner.torque_settings import build  # noqa: E402
 

@@ -2,7 +2,7 @@
 estimator against the generalized-momentum observer (GMO, on backward-difference or
 differentiator velocities) and finite differences, measured in one run.
 
-Per estimator and bag (bags/arm7_*), with the detector of fto_ros.rigid.collision at a bound
+Per estimator and bag (bags/arm7_*), with the detector of fto_ros.arm.collision at a bound
 of 1e-2 false alarms per hour, its residual divided by ||M_i,:(q)|| (every estimator's noise
 follows the inertia), calibrated on the bag's own estimates over t in [0.5, 2.5] s:
 
@@ -38,8 +38,8 @@ sys.path.insert(0, str(ROOT))
 from fto_ros.cli.simulate_arm import read_arm_bag  # noqa: E402
 from fto_ros.cli.torque_table import BAGS, BOUND, JOINTS, evaluate  # noqa: E402
 from fto_ros.models.arm import ArmSettings, simulate_arm  # noqa: E402
-from fto_ros.rigid import load_model  # noqa: E402
-from fto_ros.rigid.external_torque import FiniteDifference, MomentumObserver, WindowEstimator  # noqa: E402
+from fto_ros.arm import load_model  # noqa: E402
+from fto_ros.arm.external_torque import FiniteDifference, MomentumObserver, WindowEstimator  # noqa: E402
 
 URDF = ROOT / "urdf" / "arm7.urdf"
 

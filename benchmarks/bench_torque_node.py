@@ -207,7 +207,7 @@ def _measure(duration, node, echo_p, ex, last, count_file, me, env) -> dict:
 
 def micro(n: int = 3000) -> None:
     from fto_ros.cli.simulate_arm import read_arm_bag
-    from fto_ros.rigid import steps
+    from fto_ros.arm import steps
     from fto_ros.runner.torque_loop import TorqueLoop
     from fto_ros.runner.torque_settings import build
     run, _ = read_arm_bag(BAG)
@@ -222,14 +222,11 @@ def micro(n: int = 3000) -> None:
             f(k)
         return (time.perf_counter() - t0) / n * 1e6
     q, v = run.q_measured, run.v
-    rows = [("Pinocchio: M, C, g (momentum_terms)", per_sample(lambda k: model.momentum_terms(q[k], v[k]))),
-            ("  crba alone", per_sample(lambda k: model._pin.crba(model.model, model.data, model._q(q[k])))),
-            ("  computeCoriolisMatrix alone", per_sample(
-                lambda k: model._pin.computeCoriolisMatrix(model.model, model.data, model._q(q[k]),
-                                                           model._v(v[k])))),
-            ("  computeGeneralizedGravity alone", per_sample(
-                lambda k: model._pin.computeGeneralizedGravity(model.model, model.data,
-                                                               model._q(q[k]))))]
+    # the model's terms, compiled (Pinocchio's calls before: benchmarks/bench_arm_dynamics.py)
+    rows = [("model terms: M, Mdot, C'v, g (momentum_terms)",
+             per_sample(lambda k: model.momentum_terms(q[k], v[k]))),
+            ("  the same without M (the window's centre)",
+             per_sample(lambda k: model.momentum_terms(q[k], v[k], False)))]
     for compiled in (True, False):
         loop = TorqueLoop(build({"plant.urdf": str(URDF)}))
         loop.est.compiled = compiled
@@ -248,7 +245,7 @@ def micro(n: int = 3000) -> None:
     rows.append(("numpy window_step alone", per_sample(
         lambda k: steps.window_step(st, c, 1e-3, q[k], run.tau[k], M, Md, np.zeros(7), Md,
                                     np.zeros(7)))))
-    from fto_ros.rigid import steps_compiled
+    from fto_ros.arm import steps_compiled
     new = np.empty_like(st)
     rows.append(("compiled window_step alone", per_sample(
         lambda k: steps_compiled.window_step(st, c, q[k], run.tau[k], M, Md, np.zeros(7), Md,

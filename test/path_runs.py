@@ -50,34 +50,10 @@ def run_pairs(pairs, limit: int) -> dict[str, np.ndarray]:
     for i, (bag, params) in enumerate(pairs):
         r = Runner(load_params_files([str(ROOT / p) for p in params]))
         kind, t, values = _events(ROOT / "bags" / bag, r, limit)
-        if hasattr(r, "process_block"):
-            blk = r.process_block(kind, t, values)
-            status, est, conv = blk.status[:, 0], blk.estimate[:, 0], blk.convergence[:, 0]
-        else:                                    # runner/legacy.py: one event at a time
-            status, est, conv = _one_by_one(r, kind, t, values)
+        blk = r.process_block(kind, t, values)
+        status, est, conv = blk.status[:, 0], blk.estimate[:, 0], blk.convergence[:, 0]
         out[f"{i}_status"], out[f"{i}_est"], out[f"{i}_conv"] = status, est, conv
     return out
-
-
-def _one_by_one(r, kind, t, values):
-    from fto_ros.core.reasons import CODE
-    from fto_ros.runner import Output
-    from fto_ros.runner import loop as L
-    n, p, m = r.observer.n_states, r.observer.n_outputs, r.observer.n_inputs
-    status = np.zeros(len(t), np.int16)
-    est = np.zeros((len(t), n))
-    conv = np.zeros((len(t), len(r.convergence_fields)))
-    for k in range(len(t)):
-        if kind[k] == L.INPUT:
-            res = r.set_input(t[k], values[k, :m])
-            status[k] = L.INPUT_TAKEN if res is None else CODE.get(res, L.HELD)
-            continue
-        res = r.process(t[k], values[k, :p])
-        if isinstance(res, Output):
-            est[k], conv[k] = res.estimate, res.convergence
-        else:
-            status[k] = CODE.get(res, L.HELD)
-    return status, est, conv
 
 
 def numpy_path(pairs, limit: int, tmp: Path) -> dict[str, np.ndarray]:

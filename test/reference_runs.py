@@ -25,7 +25,6 @@ import numpy as np
 from fto_ros.replay.replay import replay
 from fto_ros.runner import loop as L
 from fto_ros.runner import runner as R
-from fto_ros.runner.legacy import LegacyRunner
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = ROOT / "test" / "data" / "runner_reference.npz"
@@ -44,33 +43,28 @@ def log_replay(bag: Path, params: list[Path]):
     row: reject), with the statuses and outputs the block returned."""
     log: list = []
     captured = {}
-    patched = []
-    for cls in (R.Runner, LegacyRunner):
-        orig = {k: getattr(cls, k) for k in ("process_block", "reject", "__init__")}
-        patched.append((cls, orig))
+    cls = R.Runner
+    orig = {k: getattr(cls, k) for k in ("process_block", "reject", "__init__")}
 
-        def make(orig):
-            def process_block(self, kind, t, values, refused=None):
-                blk = orig["process_block"](self, kind, t, values, refused)
-                _log_block(self, log, kind, t, values, refused, blk)
-                return blk
+    def process_block(self, kind, t, values, refused=None):
+        blk = orig["process_block"](self, kind, t, values, refused)
+        _log_block(self, log, kind, t, values, refused, blk)
+        return blk
 
-            def reject(self, reason, *a, **k):
-                log.append((2, 0.0, [], reason))
-                return orig["reject"](self, reason, *a, **k)
+    def reject(self, reason, *a, **k):
+        log.append((2, 0.0, [], reason))
+        return orig["reject"](self, reason, *a, **k)
 
-            def init(self, *a, **k):
-                orig["__init__"](self, *a, **k)
-                captured["runner"] = self
-            return process_block, reject, init
-        cls.process_block, cls.reject, cls.__init__ = make(orig)
+    def init(self, *a, **k):
+        orig["__init__"](self, *a, **k)
+        captured["runner"] = self
+    cls.process_block, cls.reject, cls.__init__ = process_block, reject, init
     try:
         with tempfile.TemporaryDirectory() as d:
             replay(bag, params, Path(d) / "o", plot=False, progress=False)
     finally:
-        for cls, orig in patched:
-            for k, v in orig.items():
-                setattr(cls, k, v)
+        for k, v in orig.items():
+            setattr(cls, k, v)
     return log, captured["runner"]
 
 
@@ -84,8 +78,7 @@ def _log_block(runner, log, kind, t, values, refused, blk) -> None:
         st = int(blk.status[k, 0])
         why = R.reason(st)
         if kind[k] == L.REFUSED or (refused is not None and int(np.ravel(refused[k])[0]) > 0):
-            if not isinstance(runner, LegacyRunner):     # its reject call is logged itself
-                log.append((2, 0.0, [], why))
+            log.append((2, 0.0, [], why))
         elif kind[k] == L.INPUT:
             log.append((0, float(t[k]), values[k, :m].tolist(), why))
         elif st != L.SKIPPED:

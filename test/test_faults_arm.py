@@ -1,4 +1,4 @@
-"""Fault injection into the arm's new inputs (fto_ros.rigid): junk URDF sources, and per-joint
+"""Fault injection into the arm's new inputs (fto_ros.arm): junk URDF sources, and per-joint
 junk values and junk stamps into every external-torque estimator. A refused source is one
 ConfigError; a junk sample raises SampleRejected and leaves the estimator exactly as a twin
 that never saw it (bit for bit). Families and counts as the other fault suites (faultkit)."""
@@ -12,8 +12,8 @@ import pytest
 from faultkit import COUNTS, junk_stamps, junk_values
 from fto_ros.core.errors import ConfigError
 from fto_ros.models.arm import ArmSettings, simulate_arm
-from fto_ros.rigid import load_model
-from fto_ros.rigid.external_torque import (FiniteDifference, MomentumObserver, SampleRejected,
+from fto_ros.arm import load_model
+from fto_ros.arm.external_torque import (FiniteDifference, MomentumObserver, SampleRejected,
                                            WindowEstimator)
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -71,7 +71,7 @@ def test_each_joint_equals_its_own_runner_bit_for_bit(tuning):
                 assert np.array_equal(got.convergence, want.convergence), (k, j)
     for j, r in enumerate(alone):
         assert multi.rejected_of(j) == r.rejected
-        assert int(multi._rs[j, 11]) == r.accepted          # loop.ACCEPTED
+        assert int(multi._mem.rs[j, 11]) == r.accepted          # loop.ACCEPTED
     assert multi.rejected_of(0) == {}
     levels = [st.level for st in multi.statuses(1.5)]
     assert levels[1] == 0 and levels[2] > 0 and levels[3] > 0 and levels[0] == max(levels[1:])

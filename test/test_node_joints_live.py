@@ -212,7 +212,7 @@ def test_joint_outputs_equal_the_runner_and_junk_stays_in_its_joint(tmp_path, tu
             assert rejected == counted
             per_joint = runner.rejected_of(JOINTS.index(joint))
             assert rejected == sum(per_joint.values()), (joint, status[joint], per_joint)
-            assert int(status[joint]["samples accepted"]) == int(runner._rs[JOINTS.index(joint), 11])
+            assert int(status[joint]["samples accepted"]) == int(runner._mem.rs[JOINTS.index(joint), 11])
         assert int(status["j1"]["samples rejected"]) == 0
         assert int(status["j2"]["samples rejected"]) >= 1 and int(status["j3"]["samples rejected"]) >= 1
         assert node_status["joints"] == "j1, j2, j3"

@@ -178,7 +178,7 @@ def test_observability_form_through_a_linear_map(type_name):
     flat = chain_flat(type_name, **{"observer.initial_estimate": [0.1, -0.5]},
                       **({"global_norm.conditions": "warn", "global_norm.gamma_hat": "10 + 10*w"}
                          if type_name == "global_norm" else {"high_gain.L": 20.0}))
-    flat_out, adapt = expand(flat)
+    flat_out = expand(flat)
     y, x1, u0 = sympy.symbols("y x1 u0")
     # z = (2p, 2v): z1' = 2 (-p - p^3 - v + F) with p = y/2, v = x1/2
     assert sympy.simplify(sympy.sympify(flat_out[f"{type_name}.f"])

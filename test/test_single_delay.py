@@ -19,7 +19,7 @@ from fto_ros.models import dc_motor
 from fto_ros.models.simulate import simulate
 from fto_ros.core.params import resolve
 from fto_ros.observers.base import SampleRejected
-from fto_ros.observers.single_delay import ContinuousSingleDelay, SingleDelayObserver, design
+from fto_ros.observers.single_delay import SingleDelayObserver, design
 from fto_ros.runner import Runner, load_params_file
 
 CONFIG = "test/data/dc_motor_explicit/dc_motor_single_delay.yaml"
@@ -244,7 +244,7 @@ def test_runner_with_paper_config_reports_design_figures():
 # -- the delay ring's fixed capacity ------------------------------------------------------------
 def _windowed(entries: int):
     """The continuous form with a delay ring that keeps ``entries`` per window whole."""
-    return type(f"Window{entries}", (ContinuousSingleDelay,), {"WINDOW_ENTRIES": entries})
+    return type(f"Window{entries}", (SingleDelayObserver,), {"WINDOW_ENTRIES": entries})
 
 
 def _run_checked(obs, t, y, u):

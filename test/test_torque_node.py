@@ -182,7 +182,7 @@ def test_compiled_steps_equal_the_numpy_steps(arm_run):
     """The window estimator through steps_compiled (numba) and through steps (numpy) on 1.5 s
     of the contact bag around the contact: the same estimates up to rounding."""
     from fto_ros.core import jit
-    from fto_ros.rigid.external_torque import WindowEstimator, run_over
+    from fto_ros.arm.external_torque import WindowEstimator, run_over
     if not jit.ENABLED:
         pytest.skip("numba is off (FTO_ROS_NUMBA=0): the compiled steps are the numpy ones")
     model = build(PARAMS).model
@@ -343,10 +343,10 @@ BAD_URDF = ('<robot name="r"><link name="a"/><joint name="j" type="revolute">'
 
 @pytest.mark.live
 @pytest.mark.parametrize("params, names", [
-    (("plant.urdf:={bad}",), "'plant.urdf': Pinocchio cannot read"),
+    (("plant.urdf:={bad}",), "'plant.urdf': joint 'j': there is no link"),
     ((f"plant.urdf:={URDF}", "plant.joints:=[joint_a1, elbow]"), "'plant.joints'"),
     (("robot_description:=this is not xml",), "'robot_description': not a URDF"),
-], ids=["urdf_pinocchio_cannot_read", "joints_it_has_not", "robot_description_not_xml"])
+], ids=["urdf_refused", "joints_it_has_not", "robot_description_not_xml"])
 def test_refusals_exit_2_with_one_line(tmp_path, params, names):
     import subprocess
     import sys

@@ -11,7 +11,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..core.errors import short
+from ..core.errors import DecodeError, short
 from .reader import BagError
 from .writer import FLOAT64_MULTI_ARRAY as F64_ARRAY, JOINT_STATE
 
@@ -61,7 +61,7 @@ def f64_prefix(n: int, labels=None) -> bytes:
 def _f64_data_at(p) -> tuple[int, int]:
     """(offset of the first double, count) of a little-endian CDR Float64MultiArray."""
     if bytes(p[:4]) != _CDR_LE:
-        raise ValueError("not little-endian CDR")
+        raise DecodeError("not little-endian CDR")
     pos = 4
     (ndims,) = _U32.unpack_from(p, pos)
     pos += 4
@@ -77,7 +77,7 @@ def _f64_data_at(p) -> tuple[int, int]:
     if count:
         pos += (4 - pos) % 8
     if pos + 8 * count > len(p):
-        raise ValueError("truncated")
+        raise DecodeError("truncated")
     return pos, count
 
 
@@ -301,7 +301,7 @@ class JointStateView:
 def _joint_state_layout(row: bytes) -> tuple[list[str], tuple[int, int, int], str]:
     """(names, array sizes, frame_id) of one little-endian CDR JointState, or ValueError."""
     if row[:4] != _CDR_LE:
-        raise ValueError("not little-endian CDR")
+        raise DecodeError("not little-endian CDR")
     pos = 12
 
     def string() -> str:
@@ -309,7 +309,7 @@ def _joint_state_layout(row: bytes) -> tuple[list[str], tuple[int, int, int], st
         pos += (4 - pos) % 4
         (n,) = _U32.unpack_from(row, pos)
         if n < 1 or row[pos + 4 + n - 1] != 0:
-            raise ValueError("bad string")
+            raise DecodeError("bad string")
         text = row[pos + 4:pos + 3 + n].decode()
         pos += 4 + n
         return text
@@ -319,7 +319,7 @@ def _joint_state_layout(row: bytes) -> tuple[list[str], tuple[int, int, int], st
     (count,) = _U32.unpack_from(row, pos)
     pos += 4
     if count > len(row):
-        raise ValueError("bad name count")
+        raise DecodeError("bad name count")
     names = [string() for _ in range(count)]
     sizes = []
     for _ in range(3):
@@ -331,7 +331,7 @@ def _joint_state_layout(row: bytes) -> tuple[list[str], tuple[int, int, int], st
         pos += 8 * k
         sizes.append(k)
     if pos != len(row):
-        raise ValueError("length mismatch")
+        raise DecodeError("length mismatch")
     return names, tuple(sizes), frame
 
 

@@ -29,7 +29,7 @@ import numpy as np
 import yaml
 from numpy.lib.stride_tricks import as_strided
 
-from ..core.errors import FtoRosError
+from ..core.errors import NotFast
 
 _MAGIC = b"\x89MCAP0\r\n"
 _REC = struct.Struct("<BQ")
@@ -44,10 +44,6 @@ _HDR = MSG_HEADER.itemsize                  # 31
 _HDR_RANGE = np.arange(_HDR)
 #: the fast path reads whole files into memory; larger bags go through BagReader
 FAST_PATH_MAX_BYTES = 1 << 30
-
-
-class NotFast(FtoRosError):
-    """The fast MCAP path cannot read this bag; use BagReader."""
 
 
 class Payloads(Sequence):

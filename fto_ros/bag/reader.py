@@ -21,11 +21,7 @@ from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.msg import get_types_from_msg
 
-from ..core.errors import FtoRosError
-
-
-class BagError(FtoRosError):
-    """A bag cannot be read or written; the message names the path and the problem."""
+from ..core.errors import BagError
 
 
 class TopicInfo(NamedTuple):

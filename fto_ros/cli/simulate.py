@@ -60,6 +60,7 @@ from ..core.output_dir import OutputError, OutputExists, check_output
 from ..models import MODELS
 from ..core.command_line import non_negative_float, positive_float
 from ..models.simulate import quantize_ns, simulate, sparse_instants, to_ns, uniform_grid
+from ..core.errors import BadArgument, CommandLineError
 
 PROG = "fto-simulate"
 #: metadata.yaml custom_data key holding the simulation settings (JSON)
@@ -119,13 +120,13 @@ def build_parser() -> argparse.ArgumentParser:
 def _state_jump(text: str) -> tuple[float, str, float]:
     parts = text.split(",")
     if len(parts) != 3:
-        raise argparse.ArgumentTypeError(f"expected T,STATE,DELTA, got {text!r}")
+        raise CommandLineError(f"expected T,STATE,DELTA, got {text!r}")
     try:
         t, delta = float(parts[0]), float(parts[2])
     except ValueError:
-        raise argparse.ArgumentTypeError(f"T and DELTA must be numbers, got {text!r}") from None
+        raise CommandLineError(f"T and DELTA must be numbers, got {text!r}") from None
     if not (math.isfinite(t) and math.isfinite(delta)):
-        raise argparse.ArgumentTypeError(f"T and DELTA must be finite, got {text!r}")
+        raise CommandLineError(f"T and DELTA must be finite, got {text!r}")
     return t, parts[1].strip(), delta
 
 
@@ -167,7 +168,7 @@ def read_sample_times(path: str) -> np.ndarray:
     try:
         return np.array([float(tok) for tok in tokens], dtype=float)
     except ValueError as err:
-        raise ValueError(f"{path}: not a list of numbers ({err})") from None
+        raise BadArgument(f"{path}: not a list of numbers ({err})") from None
 
 
 def _measurement_instants(args, parser, base: np.ndarray,
@@ -387,4 +388,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    sys.exit(main())

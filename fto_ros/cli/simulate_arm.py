@@ -49,7 +49,7 @@ from ..core.errors import ConfigError, FtoRosError
 from ..models import arm_stream
 from ..models.arm import ArmSettings, Contact, Gripper, simulate_arm
 from ..models.arm_urdf import MOVABLE, perturbed, trunk, urdf_joints, without_mimic
-from ..rigid.model import load_model
+from ..arm.model import load_model
 from .arm_bag import METADATA_KEY, read_arm_bag, topic_names, write_arm_bag
 
 __all__ = ["METADATA_KEY", "build_parser", "main", "read_arm_bag"]

@@ -4,7 +4,7 @@ tau_ext error in free motion, detection delay and false alarms), and the evaluat
 benchmarks/bench_external_torque.py sweeps.
 
 Per estimator and bag (bags/arm7_*, ``fto-simulate --urdf``), with the detector of
-fto_ros.rigid.collision at a bound of 1e-2 false alarms per hour, its residual divided by
+fto_ros.arm.collision at a bound of 1e-2 false alarms per hour, its residual divided by
 ||M_i,:(q)||, calibrated on the bag's own estimates over t in [0.5, 2.5] s.
 """
 from __future__ import annotations
@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..rigid import load_model
-from ..rigid.collision import CollisionDetector, detection_time
-from ..rigid.external_torque import FiniteDifference, MomentumObserver, WindowEstimator, run_over
+from ..arm import load_model
+from ..arm.collision import CollisionDetector, detection_time
+from ..arm.external_torque import FiniteDifference, MomentumObserver, WindowEstimator, run_over
 from .simulate_arm import read_arm_bag
 
 BAGS = ("arm7_contact_link6", "arm7_contact_tool", "arm7_free")

@@ -8,14 +8,16 @@ import os
 import sys
 from typing import Callable
 
+from .errors import CommandLineError
+
 
 def _number(text: str) -> float:
     try:
         value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+        raise CommandLineError(f"not a number: {text!r}") from None
     if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"must be finite, got {text!r}")
+        raise CommandLineError(f"must be finite, got {text!r}")
     return value
 
 
@@ -23,7 +25,7 @@ def positive_float(text: str) -> float:
     """A finite number > 0."""
     value = _number(text)
     if value <= 0:
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
+        raise CommandLineError(f"must be a finite number > 0, got {text!r}")
     return value
 
 
@@ -31,7 +33,7 @@ def non_negative_float(text: str) -> float:
     """A finite number >= 0."""
     value = _number(text)
     if value < 0:
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text!r}")
+        raise CommandLineError(f"must be a finite number >= 0, got {text!r}")
     return value
 
 
@@ -39,7 +41,7 @@ def fraction(text: str) -> float:
     """A number in [0, 1]."""
     value = _number(text)
     if not 0.0 <= value <= 1.0:
-        raise argparse.ArgumentTypeError(f"must be a fraction in [0, 1], got {text!r}")
+        raise CommandLineError(f"must be a fraction in [0, 1], got {text!r}")
     return value
 
 
@@ -48,9 +50,9 @@ def positive_int(text: str) -> int:
     try:
         value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+        raise CommandLineError(f"not an integer: {text!r}") from None
     if value < 1:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}")
+        raise CommandLineError(f"must be an integer >= 1, got {text!r}")
     return value
 
 

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .errors import BadArgument
 from .jit import jit
 
 START, CURSOR, END = 0, 1, 2
@@ -150,9 +151,9 @@ class DelayBuffer:
         """The signal at time t (first entry <= t <= newest entry), Hermite-interpolated.
         The next read must not be earlier than this one."""
         if not len(self) or not self.first_time <= t <= self._time(self._idx[END] - 1):
-            raise ValueError(f"time {t} outside the buffer [{self.first_time}, newest]")
+            raise BadArgument(f"time {t} outside the buffer [{self.first_time}, newest]")
         if t < self._time(self._idx[CURSOR]):
-            raise ValueError(f"time {t} is before the previous read")
+            raise BadArgument(f"time {t} is before the previous read")
         out = np.empty(self.dim)
         ring_read(self._wk, 0, self._cap, self.dim, self._idx, float(t), out)
         return out

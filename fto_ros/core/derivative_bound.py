@@ -21,6 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .errors import BadArgument
+
 #: the noise excursion accepted, relative to the bound
 NOISE_FRACTION = 0.1
 #: the largest noise excursion among the estimates, in standard deviations
@@ -67,7 +69,7 @@ def derivative_bound(t, x, order: int) -> DerivativeBound:
     w = order + 5                                   # degree order + 2, two spare samples
     w += 1 - w % 2                                  # odd: a centred window
     if len(t) < 2 * w:
-        raise ValueError(f"{len(t)} samples: at least {2 * w} are needed")
+        raise BadArgument(f"{len(t)} samples: at least {2 * w} are needed")
     longest = min(len(t) // 4, 2001)
     while True:
         deriv, sigma, gain = _fits(t, x, order, w)

@@ -55,7 +55,7 @@ more.  On sin t + 0.5 sin 3t at 1 kHz without noise this divides the
 second-derivative error by 1.8-2.5 (order 2 and 3; test/test_differentiator.py).
 
 Errors: bad constructor arguments, a bad step or sample, or a step whose result
-would not be finite raise ValueError and leave the state untouched.
+would not be finite raise BadArgument (a ValueError) and leave the state untouched.
 
 This module designs a differentiator; its step is compiled (core/differentiator_step.py:
 every channel with the same arithmetic, the observers' kernels embed it in their state).
@@ -69,6 +69,7 @@ from typing import Sequence
 import numpy as np
 
 from . import differentiator_step as S
+from .errors import BadArgument, NotReady
 
 SCHEMES = ("eigenvalue_matched", "livne_levant", "euler")
 MAX_ORDER = 7
@@ -84,9 +85,9 @@ def recursive_to_nonrecursive(lambdas: Sequence[float]) -> tuple[float, ...]:
     l~_n = lambda_n, l~_j = lambda_j l~_(j+1)^(j/(j+1)), l~_0 = lambda_0."""
     lam = [float(v) for v in lambdas]
     if len(lam) < 2:
-        raise ValueError("lambdas: need at least 2 values (order >= 1)")
+        raise BadArgument("lambdas: need at least 2 values (order >= 1)")
     if not all(math.isfinite(v) and v > 0 for v in lam):
-        raise ValueError(f"lambdas: all must be finite and > 0, got {lam}")
+        raise BadArgument(f"lambdas: all must be finite and > 0, got {lam}")
     n = len(lam) - 1
     out = [0.0] * (n + 1)
     out[n] = lam[n]
@@ -192,16 +193,16 @@ def _is_int(v) -> bool:
 
 def _check_order(order) -> None:
     if not _is_int(order) or not 1 <= order <= MAX_ORDER:
-        raise ValueError(f"order: must be an integer in 1..{MAX_ORDER}, got {order!r}")
+        raise BadArgument(f"order: must be an integer in 1..{MAX_ORDER}, got {order!r}")
 
 
 def _positive(name: str, v) -> float:
     try:
         x = float(v)
     except (TypeError, ValueError):
-        raise ValueError(f"{name}: must be a number, got {v!r}") from None
+        raise BadArgument(f"{name}: must be a number, got {v!r}") from None
     if not (math.isfinite(x) and x > 0):
-        raise ValueError(f"{name}: must be finite and > 0, got {v!r}")
+        raise BadArgument(f"{name}: must be finite and > 0, got {v!r}")
     return x
 
 
@@ -226,31 +227,31 @@ class Differentiator:
         _check_order(order)
         self.L = _positive("L", L)
         if not _is_int(channels) or channels < 1:
-            raise ValueError(f"channels: must be an integer >= 1, got {channels!r}")
+            raise BadArgument(f"channels: must be an integer >= 1, got {channels!r}")
         if scheme not in SCHEMES:
-            raise ValueError(f"scheme: must be one of {', '.join(SCHEMES)}, got {scheme!r}")
+            raise BadArgument(f"scheme: must be one of {', '.join(SCHEMES)}, got {scheme!r}")
         self.rho = _positive("rho", rho)
         if not _is_int(filter_order) or filter_order < 0:
-            raise ValueError(f"filter_order: must be an integer >= 0, got {filter_order!r}")
+            raise BadArgument(f"filter_order: must be an integer >= 0, got {filter_order!r}")
         if order + filter_order + 1 > MAX_CHAIN:
-            raise ValueError(f"filter_order: order + filter_order must be <= {MAX_CHAIN - 1}, "
+            raise BadArgument(f"filter_order: order + filter_order must be <= {MAX_CHAIN - 1}, "
                              f"got {order} + {filter_order}")
         if filter_order and scheme != "eigenvalue_matched":
-            raise ValueError(f"filter_order: filtering is implemented for the "
+            raise BadArgument(f"filter_order: filtering is implemented for the "
                              f"eigenvalue_matched scheme only, not {scheme!r}")
         if gains is not None:
             if scheme == "eigenvalue_matched":
-                raise ValueError("gains: the eigenvalue_matched scheme places its poles from "
+                raise BadArgument("gains: the eigenvalue_matched scheme places its poles from "
                                  "rho and L; gains apply to livne_levant and euler only")
             try:
                 g = [float(v) for v in gains]
             except (TypeError, ValueError):
-                raise ValueError(f"gains: must be a sequence of numbers, got {gains!r}") from None
+                raise BadArgument(f"gains: must be a sequence of numbers, got {gains!r}") from None
             if len(g) != order + 1:
-                raise ValueError(f"gains: need order + 1 = {order + 1} values l~_0..l~_n, "
+                raise BadArgument(f"gains: need order + 1 = {order + 1} values l~_0..l~_n, "
                                  f"got {len(g)}")
             if not all(math.isfinite(v) and v > 0 for v in g):
-                raise ValueError(f"gains: all must be finite and > 0, got {g}")
+                raise BadArgument(f"gains: all must be finite and > 0, got {g}")
             self.gains = tuple(g)
         else:
             self.gains = levant_gains(order)
@@ -335,11 +336,11 @@ class Differentiator:
         if derivatives is not None:
             d = np.asarray(derivatives, dtype=float)
             if d.size != self.channels * self.order:
-                raise ValueError(f"derivatives: need shape ({self.channels}, {self.order}), "
+                raise BadArgument(f"derivatives: need shape ({self.channels}, {self.order}), "
                                  f"got {d.shape}")
             d = np.ascontiguousarray(d, dtype=float).reshape(-1)
             if not np.all(np.isfinite(d)):
-                raise ValueError("derivatives: must be finite")
+                raise BadArgument("derivatives: must be finite")
         S.reset(self.consts, 0, self._st, self._so, f0, d, derivatives is not None)
         self._ready = True
 
@@ -372,9 +373,9 @@ class Differentiator:
     def _sample(self, f) -> np.ndarray:
         a = np.asarray(f, dtype=float).reshape(-1)
         if a.size != self.channels:
-            raise ValueError(f"f: need {self.channels} value(s), got {a.size}")
+            raise BadArgument(f"f: need {self.channels} value(s), got {a.size}")
         if not np.all(np.isfinite(a)):
-            raise ValueError(f"f: must be finite, got {a}")
+            raise BadArgument(f"f: must be finite, got {a}")
         return np.ascontiguousarray(a)
 
     def update(self, h: float, f) -> np.ndarray:
@@ -382,17 +383,17 @@ class Differentiator:
         Returns the current estimates at the new sample time, which use f (read-only view,
         shape (channels, n+1); module doc)."""
         if not self._ready:
-            raise RuntimeError("Differentiator.update before reset()")
+            raise NotReady("Differentiator.update before reset()")
         if type(f) is float and self.channels == 1 and f - f == 0.0:
             fa = self._f
             fa[0] = f
         else:
             fa = self._sample(f)
         if not (h > 0 and h < math.inf):           # also rejects NaN
-            raise ValueError(f"h: the step must be finite and > 0, got {h!r}")
+            raise BadArgument(f"h: the step must be finite and > 0, got {h!r}")
         nx = self._nx
         if S.update(self.consts, 0, self._st, self._so, nx, 0, float(h), fa, self._wk, 0):
-            raise ValueError(f"h: the step {h!r} gives a non-finite estimate; state unchanged")
+            raise BadArgument(f"h: the step {h!r} gives a non-finite estimate; state unchanged")
         self._st[self._so:self._so + self.state_size] = nx
         return self._view
 

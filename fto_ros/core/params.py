@@ -12,7 +12,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from .errors import ConfigError, short
+from .errors import ConfigError, UsageError, short
 
 
 #: parameter kinds, mapped one to one onto ROS 2 parameter types
@@ -72,7 +72,7 @@ class Param:
 
     def __post_init__(self):
         if self.kind not in KINDS:
-            raise TypeError(f"unknown parameter kind {self.kind!r}")
+            raise UsageError(f"unknown parameter kind {self.kind!r}")
 
     @property
     def required(self) -> bool:

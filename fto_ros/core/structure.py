@@ -25,19 +25,11 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg as sla
 
-from .errors import FtoRosError
+from .errors import StructureError
 from .linear import observability_matrix
 
 #: relative tolerance for "c A^s D = 0" and for rank decisions
 RTOL = 1e-9
-
-
-class StructureError(FtoRosError, ValueError):
-    """The plant fails a structural condition; ``condition`` is a short tag."""
-
-    def __init__(self, condition: str, message: str):
-        super().__init__(message)
-        self.condition = condition
 
 
 def relative_degree(A: np.ndarray, C: np.ndarray, D: np.ndarray) -> tuple[list[int], np.ndarray]:

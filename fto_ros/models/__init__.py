@@ -11,6 +11,7 @@ from . import dc_motor_load, fld_examples
 from . import possieri_example
 from . import cubic_escape
 from .simulate import ModelSpec, SimulationResult, simulate
+from ..core.errors import UnknownName
 
 MODELS: dict[str, ModelSpec] = {
     **{m.name: m for m in (cubic_escape.CUBIC_ESCAPE_SPEC, cubic_escape.VAN_DER_POL_SPEC)},
@@ -27,7 +28,7 @@ def get_model(name: str) -> ModelSpec:
     try:
         return MODELS[name]
     except KeyError:
-        raise KeyError(f"unknown model {name!r}; known models: {', '.join(sorted(MODELS))}") \
+        raise UnknownName(f"unknown model {name!r}; known models: {', '.join(sorted(MODELS))}") \
             from None
 
 

@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.errors import ConfigError
-from ..rigid.model import RigidBodyModel
+from ..arm.model import RigidBodyModel
 from .arm_plant import ArmPlant, Contact, SimulationError, check_contacts
 from .arm_stream import sample_instants
 

@@ -1,6 +1,6 @@
 """The simulated arm's equations of motion and their integration (ROS-free).
 
-Every joint of a :class:`~fto_ros.rigid.RigidBodyModel` (the TRUE arm, which may differ from
+Every joint of a :class:`~fto_ros.arm.RigidBodyModel` (the TRUE arm, which may differ from
 the URDF a user has) moves: ``M(q) a + C(q, v) v + g(q) + tau_f(v) = tau + J_c(q)^T F_c(t)``,
 Pinocchio's articulated-body algorithm. The driven joints (index ``driven``: the arm) get the
 torque the controller commands, held over each control interval; the others (a gripper's

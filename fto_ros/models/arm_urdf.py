@@ -2,7 +2,7 @@
 limits and ``<mimic>`` elements, the arm's trunk, and a simulated arm that differs from the
 URDF (the model error of ``fto-simulate --urdf --model-error``).
 
-The dynamics come from :func:`fto_ros.rigid.load_model`; this module only decides which
+The dynamics come from :func:`fto_ros.arm.load_model`; this module only decides which
 joints move how and rewrites inertials. ``<mimic>`` elements are removed from the text the
 simulator loads (:func:`without_mimic`): the simulator moves a mimic joint itself, as a
 coordinate of its own that follows its parent exactly (q = multiplier q_parent + offset).

@@ -28,6 +28,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from .simulate import ModelSpec, Rhs
+from ..core.errors import BadArgument
 
 
 @dataclass(frozen=True)
@@ -66,7 +67,7 @@ class CanonicalPlant:
         known = {f"a{k}" for k in range(n)} | {f"b{k}" for k in range(rho + 1)}
         unknown = set(params) - known
         if unknown:
-            raise ValueError(f"unknown parameter(s) {sorted(unknown)}; known: {sorted(known)}")
+            raise BadArgument(f"unknown parameter(s) {sorted(unknown)}; known: {sorted(known)}")
         a = tuple(float(params[f"a{n - 1 - i}"]) for i in range(n))
         b = tuple(float(params[f"b{rho - i}"]) for i in range(rho + 1))
         return cls(a, b)

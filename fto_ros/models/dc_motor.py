@@ -34,6 +34,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from .simulate import ModelSpec, Rhs
+from ..core.errors import BadArgument
 
 
 @dataclass(frozen=True)
@@ -53,7 +54,7 @@ class DCMotorParams:
         params = dict(params or {})
         unknown = set(params) - set(cls.__dataclass_fields__)
         if unknown:
-            raise ValueError(f"unknown dc_motor parameter(s) {sorted(unknown)}; "
+            raise BadArgument(f"unknown dc_motor parameter(s) {sorted(unknown)}; "
                              f"known: {sorted(cls.__dataclass_fields__)}")
         return cls(**{k: float(v) for k, v in params.items()})
 

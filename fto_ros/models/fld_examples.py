@@ -26,6 +26,7 @@ import numpy as np
 
 from .simulate import Rhs
 from .unknown_input import UnknownInputModelSpec
+from ..core.errors import BadArgument
 
 EXAMPLE1_A = np.array([[0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1], [6, 5, -5, -5]], dtype=float)
 EXAMPLE1_D = np.array([0, 0, 0, 1], dtype=float)
@@ -56,7 +57,7 @@ def example1_noise(t: float) -> np.ndarray:
 def _make_rhs_factory(A: np.ndarray, D: np.ndarray):
     def make_rhs(params: Mapping[str, float] | None = None) -> Rhs:
         if params:
-            raise ValueError(f"this model has no parameters, got {sorted(params)}")
+            raise BadArgument(f"this model has no parameters, got {sorted(params)}")
 
         def f(t: float, x: np.ndarray, u: np.ndarray) -> np.ndarray:
             return A @ x + D * (math.cos(0.5 * t) + 0.5 * math.sin(t) + 0.5)

@@ -26,6 +26,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from .simulate import ModelSpec, Rhs
+from ..core.errors import BadArgument, SimulationFailed
 
 STATE_NAMES = ("x1", "x2")
 DEFAULT_X0 = (1.0, 2.0)
@@ -79,7 +80,7 @@ def default_input(t: float) -> np.ndarray:
 
 def make_rhs(params: Mapping[str, float] | None = None) -> Rhs:
     if params:
-        raise ValueError(f"possieri_example has no parameters, got {sorted(params)}")
+        raise BadArgument(f"possieri_example has no parameters, got {sorted(params)}")
 
     def rhs(t: float, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         return f(x, float(u[0]))
@@ -99,7 +100,7 @@ def simulate_example(t: np.ndarray, disturbance: str = "none", seed: int = 0,
     sol = solve_ivp(lambda tt, xx: f(xx, input_signal(tt)), (t[0], t[-1]), list(x0),
                     method="DOP853", t_eval=t, rtol=1e-12, atol=1e-13)
     if not sol.success:
-        raise ValueError(f"simulation failed: {sol.message}")
+        raise SimulationFailed(f"simulation failed: {sol.message}")
     x = sol.y.T
     u = np.array([[input_signal(tt)] for tt in t])
     y_true = np.array([output(xi) for xi in x])
@@ -113,7 +114,7 @@ def simulate_example(t: np.ndarray, disturbance: str = "none", seed: int = 0,
     elif disturbance == "sinusoid":
         d = (SINE_AMPLITUDE * np.sin(SINE_FREQUENCY * t)).reshape(-1, 1)
     else:
-        raise ValueError(f"unknown disturbance {disturbance!r} (none, white_noise, sinusoid)")
+        raise BadArgument(f"unknown disturbance {disturbance!r} (none, white_noise, sinusoid)")
     return {"t": t, "x": x, "u": u, "y_true": y_true, "y": y_true + d}
 
 

@@ -23,6 +23,8 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 from scipy.integrate import solve_ivp
 
+from ..core.errors import BadArgument, SimulationFailed
+
 #: ``f(t, x, u) -> x_dot`` (x and u 1-D float arrays)
 Rhs = Callable[[float, np.ndarray, np.ndarray], np.ndarray]
 #: ``u_profile(t) -> u`` (scalar or 1-D array-like)
@@ -121,7 +123,7 @@ class SimulationResult:
 def _as_1d(value, name: str) -> np.ndarray:
     arr = np.atleast_1d(np.asarray(value, dtype=float))
     if arr.ndim != 1:
-        raise ValueError(f"{name} must be a scalar or a 1-D vector, got shape {arr.shape}")
+        raise BadArgument(f"{name} must be a scalar or a 1-D vector, got shape {arr.shape}")
     return arr
 
 
@@ -174,16 +176,16 @@ def simulate(
     """
     t_s = np.asarray(t_samples, dtype=float)
     if t_s.ndim != 1 or t_s.size == 0:
-        raise ValueError("t_samples must be a non-empty 1-D array")
+        raise BadArgument("t_samples must be a non-empty 1-D array")
     if t_s.size > 1 and not np.all(np.diff(t_s) > 0):
-        raise ValueError("t_samples must be strictly increasing")
+        raise BadArgument("t_samples must be strictly increasing")
     t_u = t_s.copy() if t_input is None else np.asarray(t_input, dtype=float)
     if t_u.ndim != 1 or t_u.size == 0:
-        raise ValueError("t_input must be a non-empty 1-D array")
+        raise BadArgument("t_input must be a non-empty 1-D array")
     if t_u.size > 1 and not np.all(np.diff(t_u) > 0):
-        raise ValueError("t_input must be strictly increasing")
+        raise BadArgument("t_input must be strictly increasing")
     if t_u[0] > t_s[0]:
-        raise ValueError("the first input instant must be <= the first sample instant "
+        raise BadArgument("the first input instant must be <= the first sample instant "
                          "(the input must be defined from the start)")
     t0, t_end = t_s[0], t_s[-1]
     # Input instants before t0: only the latest one matters (it is acting at t0).
@@ -198,7 +200,7 @@ def simulate(
     jump_at: dict[float, list[tuple[int, float]]] = {}
     for tj, i, delta in jumps:
         if not (t0 < tj <= t_end) or not (0 <= i < n) or not math.isfinite(delta):
-            raise ValueError(f"jump ({tj}, {i}, {delta}): needs {t0} < t <= {t_end}, a state "
+            raise BadArgument(f"jump ({tj}, {i}, {delta}): needs {t0} < t <= {t_end}, a state "
                              f"index in 0..{n - 1} and a finite size")
         jump_at.setdefault(float(tj), []).append((int(i), float(delta)))
     # Breakpoints: union of sample instants, input instants (>= t0) and jumps.
@@ -221,12 +223,12 @@ def simulate(
         sol = solve_ivp(fun, (ta, tb), x, method=method, rtol=rtol, atol=atol,
                         first_step=tb - ta)
         if not sol.success:
-            raise ValueError(f"integration failed on [{ta}, {tb}]: {sol.message}")
+            raise SimulationFailed(f"integration failed on [{ta}, {tb}]: {sol.message}")
         x = sol.y[:, -1].copy()
         for i_state, delta in jump_at.get(float(tb), ()):
             x[i_state] += delta
         if not np.all(np.isfinite(x)):
-            raise ValueError(f"state became non-finite at t = {tb}")
+            raise SimulationFailed(f"state became non-finite at t = {tb}")
         x_break[i + 1] = x
 
     xs = x_break[out_idx]
@@ -236,11 +238,11 @@ def simulate(
         y_true = np.array([_as_1d(output(xi), "output(x)") for xi in xs])
         sigma = np.broadcast_to(np.asarray(noise_sigma, dtype=float), (y_true.shape[1],))
         if np.any(sigma < 0):
-            raise ValueError("noise_sigma must be >= 0")
+            raise BadArgument("noise_sigma must be >= 0")
         y = y_true.copy()
         if np.any(sigma > 0):
             if rng is None:
-                raise ValueError("measurement noise needs a seeded numpy Generator (rng)")
+                raise BadArgument("measurement noise needs a seeded numpy Generator (rng)")
             y = y + rng.standard_normal(y.shape) * sigma
         result.y, result.y_true = y, y_true
     return result
@@ -253,7 +255,7 @@ def uniform_grid(duration: float, rate: float, t0: float = 0.0) -> np.ndarray:
     that the simulated instants and the recorded time stamps are the same.
     """
     if duration <= 0 or rate <= 0:
-        raise ValueError("duration and rate must be > 0")
+        raise BadArgument("duration and rate must be > 0")
     n = int(round(duration * rate))
     return quantize_ns(t0 + np.arange(n + 1) / rate)
 
@@ -269,7 +271,7 @@ def sparse_instants(duration: float, t_min: float, t_max: float,
     """
     lo, hi = int(np.ceil(t_min * 1e9 - 1e-3)), int(np.floor(t_max * 1e9 + 1e-3))
     if not 0 < lo <= hi:
-        raise ValueError("need 0 < t_min <= t_max (at nanosecond resolution)")
+        raise BadArgument("need 0 < t_min <= t_max (at nanosecond resolution)")
     start, stop = to_ns(t0), to_ns(t0 + duration)
     times = [start]
     while True:

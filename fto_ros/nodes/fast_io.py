@@ -34,6 +34,7 @@ from sensor_msgs.msg import JointState
 
 from ..runner.joint_state_cdr import JointStateArrays, JointStateDecoder, JointStateEncoder
 from .outputs import OUT_QOS
+from ..core.errors import BadArgument
 
 EXECUTORS = ("events", "single")
 
@@ -46,7 +47,7 @@ def create_executor(kind: str = "events", context=None):
         return EventsExecutor(context=context)
     if kind == "single":
         return SingleThreadedExecutor(context=context)
-    raise ValueError(f"executor must be one of {EXECUTORS}, got {kind!r}")
+    raise BadArgument(f"executor must be one of {EXECUTORS}, got {kind!r}")
 
 
 def spin(executor, poll_s: float = 0.5) -> None:
@@ -132,7 +133,7 @@ class JointStateIntake:
                  on_block: Callable | None = None,
                  on_reject: Callable[[str], None] | None = None, **kwargs):
         if (on_message is None) == (on_block is None):
-            raise ValueError("give one of on_message (per message) and on_block (every message waiting)")
+            raise BadArgument("give one of on_message (per message) and on_block (every message waiting)")
         self._on_message, self._on_block = on_message, on_block
         self._on_reject = on_reject
         self.decoder = JointStateDecoder()

@@ -49,7 +49,7 @@ class JointsCore:
         """The per-joint outputs and the raw JointState subscription; the entities made."""
         runner, s = self._runner, self._runner.settings
         obs = runner.observer
-        r = runner._r
+        r = runner._mem.r
         ui_names = list(getattr(obs, "unknown_input_names", None) or
                         [f"zeta{j}" for j in range(r)])[:r]
         plan = JointOutputPlan(runner.joints, runner.roles, obs.state_names, ui_names,

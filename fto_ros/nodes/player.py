@@ -42,6 +42,8 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..core.errors import BadArgument
+
 FLOAT64_MULTI_ARRAY = "std_msgs/msg/Float64MultiArray"
 JOINT_STATE = "sensor_msgs/msg/JointState"
 CLOCK = "rosgraph_msgs/msg/Clock"
@@ -178,10 +180,10 @@ def _select_topics(topics: dict, wanted: list[str] | None, clock: bool) -> tuple
     if wanted:
         missing = [t for t in wanted if t not in topics]
         if missing:
-            raise ValueError(f"no topic(s) {missing} in the bag; it has {sorted(topics)}")
+            raise BadArgument(f"no topic(s) {missing} in the bag; it has {sorted(topics)}")
         bad = [f"{t} ({topics[t].msgtype})" for t in wanted if topics[t].msgtype not in SUPPORTED]
         if bad:
-            raise ValueError(f"cannot play {', '.join(bad)}: only Float64MultiArray, JointState "
+            raise BadArgument(f"cannot play {', '.join(bad)}: only Float64MultiArray, JointState "
                              "and Clock are supported")
         chosen = {t: topics[t].msgtype for t in wanted}
     else:

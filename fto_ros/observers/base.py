@@ -13,72 +13,51 @@ from typing import Any
 
 import numpy as np
 
-from ..core.discretize import STEP_QUANTUM, quanta
+from ..core.discretize import STEP_QUANTUM
 # an observer family imports what it declares and raises from here (the schema itself is
 # core/params.py's, shared with the plant block and the runner)
-from ..core.errors import ConfigError, FtoRosError  # noqa: F401 (ConfigError)
+from ..core.errors import ConfigError, SampleRejected  # noqa: F401 (ConfigError)
 from ..core.params import Param, check_vector, matrix  # noqa: F401
 from ..core.reasons import REJECTIONS
 
 
-class SampleRejected(FtoRosError):
-    """Raised by ``Observer.update`` for a sample it cannot use.
-
-    The observer must leave its state untouched when it raises this (compute
-    the new state first, commit it only when it is finite), so a bad sample can
-    never corrupt the estimate.  ``reason`` is a short snake_case tag counted
-    in the diagnostics.
-    """
-
-    def __init__(self, reason: str):
-        super().__init__(reason)
-        self.reason = reason
-
-
 class Observer(abc.ABC):
-    """Sample-driven, variable-step state observer.
+    """Sample-driven, variable-step state observer: the protocol every observer keeps.
 
-    Subclasses set ``TYPE`` (the registry name) and ``PARAMS`` and implement
-    ``_restart``, ``_first``, ``_step`` and ``estimate``.  Times are seconds
-    (float), ``y`` has length ``n_outputs``, ``u`` length ``n_inputs`` (an empty
-    array when there is no known input).  ``u`` given at time t is the input
-    applied from t on (zero-order hold, like a DAC) unless the observer's
-    ``input_hold`` says first-order hold.
+    Subclasses set ``TYPE`` (the registry name) and ``PARAMS``; every family is a
+    ``KernelObserver`` below (a compiled per-sample kernel, observers/kernel.py).  Times are
+    seconds (float), ``y`` has length ``n_outputs``, ``u`` length ``n_inputs`` (an empty
+    array when there is no known input).  ``u`` given at time t is the input applied from t
+    on (zero-order hold, like a DAC) unless the observer's ``input_hold`` says first-order
+    hold.
 
-    **Time is owned here.**  ``update(t, ...)`` counts the observer's clock in
-    whole STEP_QUANTUM (1 us) since the first sample after the last ``reset``
-    and hands the subclass a step ``h`` that is a positive multiple of the
-    quantum and at most ``max_step``; the subclass integrates that interval and
-    nothing else.  The runner (runner/) classifies every interval before it
-    gets here (repeated, backward, a gap longer than ``max_step`` or
-    ``time.max_gap`` restarts), so on valid input an observer never raises
-    anything but SampleRejected for a value its model cannot use.
+    **Time is owned by the kernel protocol.**  observers/kernel.py counts the observer's
+    clock in whole STEP_QUANTUM (1 us) since the first sample after the last ``reset`` and
+    hands the family a step ``h`` that is a positive multiple of the quantum and at most
+    ``max_step``; the family integrates that interval and nothing else.  The runner
+    (runner/) classifies every interval before it gets there (repeated, backward, a gap
+    longer than ``max_step`` or ``time.max_gap`` restarts), so on valid input an observer
+    never raises anything but SampleRejected for a value its model cannot use.
     """
 
     TYPE: str = ""
     PARAMS: tuple[Param, ...] = ()
     DESCRIPTION: str = ""
+    #: a composition's parameters that name the observers it is made of (observers/track/);
+    #: registry.make hands a composition itself, to build them
+    CHILD_ROLES: tuple[str, ...] = ()
 
     n_states: int
     n_outputs: int
     n_inputs: int
     state_names: list[str]
 
-    #: stamp of the first sample since the last reset (None: waiting for it)
-    _clock_t0: float | None = None
-    #: quanta from _clock_t0 to the last accepted sample
-    _clock_k: int = 0
-    #: stamp of the last accepted sample, kept across resets (a warm restart may use it)
-    _clock_t_last: float | None = None
-
-    # -- life cycle (final: subclasses implement the underscored hooks) ---
+    # -- life cycle ---------------------------------------------------------------------
+    @abc.abstractmethod
     def reset(self, t0: float | None = None, x0_hat: np.ndarray | None = None) -> None:
         """Restart at the next sample; ``x0_hat`` is the initial estimate there (None:
         the observer's default).  ``t0`` is accepted for compatibility and unused: the
         clock restarts at the next sample's stamp."""
-        self._clock_t0 = None
-        self._clock_k = 0
-        self._restart(None if x0_hat is None else np.array(x0_hat, dtype=float))
 
     def update(self, t: float, y, u) -> None:
         """Take the sample y measured at t with the current input u.
@@ -93,55 +72,26 @@ class Observer(abc.ABC):
             raise SampleRejected(reason)
         self.update_checked(t, np.asarray(y, dtype=float), np.asarray(u, dtype=float))
 
+    @abc.abstractmethod
     def update_checked(self, t: float, y: np.ndarray, u: np.ndarray) -> None:
         """``update`` for a y and u already checked (float arrays of the right length,
-        finite): the runner's entry point."""
-        if self._clock_t0 is None:
-            gap = None if self._clock_t_last is None else quanta(t - self._clock_t_last) * STEP_QUANTUM
-            self._first(y, u, gap)
-            self._clock_t0, self._clock_k, self._clock_t_last = t, 0, t
-            return
-        k = quanta(t - self._clock_t0)
-        if k <= self._clock_k:
-            raise SampleRejected("stamp_too_close")
-        h = (k - self._clock_k) * STEP_QUANTUM
-        if h > self.max_step:
-            raise SampleRejected("step_too_long")
-        self._step(k * STEP_QUANTUM, h, y, u)
-        self._clock_k = k
-        self._clock_t_last = t
+        finite)."""
 
     @property
+    @abc.abstractmethod
     def started(self) -> bool:
         """Whether a sample was accepted since the last reset."""
-        return self._clock_t0 is not None
 
     @property
+    @abc.abstractmethod
     def time_since_start(self) -> float:
         """Model time of the last accepted sample since the (re)start (s)."""
-        return self._clock_k * STEP_QUANTUM
 
     @property
     def max_step(self) -> float:
         """The longest interval this observer bridges exactly with bounded work (s);
         a longer one is a gap the runner restarts it at."""
         return math.inf
-
-    # -- what a subclass implements ----------------------------------------
-    @abc.abstractmethod
-    def _restart(self, x0_hat: np.ndarray | None) -> None:
-        """Forget the run: the next sample starts a new one from ``x0_hat`` (None: the
-        observer's default)."""
-
-    @abc.abstractmethod
-    def _first(self, y: np.ndarray, u: np.ndarray, gap: float | None) -> None:
-        """The first sample after a restart (model time 0).  ``gap``: time since the last
-        sample accepted before the restart (None if none), for warm restarts."""
-
-    @abc.abstractmethod
-    def _step(self, s: float, h: float, y: np.ndarray, u: np.ndarray) -> None:
-        """Advance by ``h`` (> 0, <= max_step) to model time ``s`` since the start and take
-        the sample; commit a finite state or raise SampleRejected leaving it untouched."""
 
     # -- outputs --------------------------------------------------------
     @property
@@ -202,10 +152,8 @@ class Observer(abc.ABC):
 class RestartCovariance:
     """A Kalman filter whose (re)start covariance lives in its constants (``_p0()``: a view
     of n x n floats there): ``P0`` reads a copy and assigning sets it, as ``track`` does at
-    every hand-over (a tracker provides this, its ``R`` and its NIS as st[HEALTH])."""
-
-    def _p0(self) -> np.ndarray:
-        raise NotImplementedError
+    every hand-over (a tracker provides this, its ``R`` and its NIS as st[HEALTH]).  The
+    class defines ``_p0``."""
 
     @property
     def P0(self) -> np.ndarray:
@@ -262,6 +210,8 @@ class KernelObserver(Observer):
 
     # -- the protocol, through the kernel ---------------------------------------------
     def _restart(self, x0_hat):
+        """Forget the run: the next sample starts a new one from ``x0_hat`` (None: the
+        family's default)."""
         has = x0_hat is not None
         x0 = np.ascontiguousarray(x0_hat, dtype=float) if has else self._empty
         self._K.restart(self._kernels, self._models, self._st, self._nx, self._c, self._ic,
@@ -289,12 +239,6 @@ class KernelObserver(Observer):
     @property
     def has_advance(self) -> bool:
         return bool(self._ic[self._K.HAS_ADVANCE])
-
-    def _first(self, y, u, gap):          # the kernel's job; never called
-        raise NotImplementedError
-
-    def _step(self, s, h, y, u):
-        raise NotImplementedError
 
     # -- what the state says ----------------------------------------------------------
     @property

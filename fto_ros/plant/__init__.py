@@ -2,24 +2,18 @@
 
 ROS-free.  :func:`expand` is the one entry point the runner calls: with a plant block in
 the flat parameters it returns them with the chosen observer's explicit parameters
-derived (and the ``plant.*`` keys consumed), plus a function that adapts the observer
-class when the observer runs in other coordinates (:mod:`fto_ros.plant.mapped`).
-Derived values are returned, never stored back: a runtime change of a tuning value
+derived (and the ``plant.*`` keys consumed), the map to the coordinates an observer runs
+in included (``global_norm.chain_map``: observers/chain_map.py).  Derived values are returned, never stored back: a runtime change of a tuning value
 (``single_delay.k``) re-derives everything that depends on it.
 """
 from __future__ import annotations
 
-from typing import Any, Callable, Mapping
+from typing import Any, Mapping
 
 from ..core.errors import ConfigError
 from ..observers import REGISTRY
 from .block import PLANT_PARAMS, PREFIX, Plant, given, resolve_plant
 from .derive import DERIVES, Derivation, derive
-from .mapped import mapped_class
-
-
-def _same_class(cls):
-    return cls
 
 
 def conflicts(type_name: str, section: Mapping[str, Any]) -> list[str]:
@@ -30,18 +24,18 @@ def conflicts(type_name: str, section: Mapping[str, Any]) -> list[str]:
             and section[k] not in (None, [], ()) and section[k] != defaults.get(k)]
 
 
-def expand(flat: Mapping[str, Any]) -> tuple[dict[str, Any], Callable[[type], type]]:
-    """(flat parameters with the derived ones, class adapter); see the module doc.
+def expand(flat: Mapping[str, Any]) -> dict[str, Any]:
+    """The flat parameters with the derived ones; see the module doc.
 
     Without a plant block: the parameters unchanged (minus empty ``plant.*`` defaults the
-    node declares) and the identity.  ConfigError for a bad plant, a plant outside the
+    node declares).  ConfigError for a bad plant, a plant outside the
     observer's class, or a parameter given both ways."""
     out = {k: v for k, v in flat.items() if not k.startswith(PREFIX)}
     if not given(flat):
-        return out, _same_class
+        return out
     type_name = flat.get("observer.type")
     if not isinstance(type_name, str) or type_name not in REGISTRY:
-        return out, _same_class            # split() refuses a missing or unknown type
+        return out                         # split() refuses a missing or unknown type
     plant = resolve_plant(flat)
     section = {k[len(type_name) + 1:]: v for k, v in flat.items()
                if k.startswith(type_name + ".")}
@@ -51,10 +45,7 @@ def expand(flat: Mapping[str, Any]) -> tuple[dict[str, Any], Callable[[type], ty
                           "plant block (plant.f, plant.h): give one or the other")
     d = derive(type_name, plant, section)
     out.update({f"{type_name}.{k}": v for k, v in d.params.items()})
-    if d.chain_map is None:
-        return out, _same_class
-    T, names = d.chain_map, list(plant.states)
-    return out, lambda cls: mapped_class(cls, T, names)
+    return out
 
 
 __all__ = ["DERIVES", "Derivation", "PLANT_PARAMS", "Plant", "derive", "expand", "given",

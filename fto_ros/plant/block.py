@@ -24,7 +24,7 @@ import numpy as np
 import sympy
 from sympy.printing.str import StrPrinter
 
-from ..core.errors import ConfigError
+from ..core.errors import BadArgument, ConfigError
 from ..core.named_model import NamedModel, parse_model
 from ..core.params import Param, resolve
 
@@ -133,7 +133,7 @@ def number(value) -> float:
     """A constant (sympy or numpy) as a float; ValueError if it is not a finite number."""
     v = float(value)
     if not math.isfinite(v):
-        raise ValueError(f"{value} is not finite")
+        raise BadArgument(f"{value} is not finite")
     return v
 
 

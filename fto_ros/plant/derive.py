@@ -32,8 +32,8 @@ DERIVES: dict[str, tuple[str, ...]] = {
              "unknown_input_names"),
     "luenberger": ("n_states", "n_outputs", "n_inputs", "A", "B", "C", "F", "state_names"),
     "newton_inversion": ("states", "inputs", "constants", "f", "h"),
-    "global_norm": ("n_states", "n_inputs", "f", "state_names"),
-    "high_gain": ("n_states", "n_inputs", "f", "state_names"),
+    "global_norm": ("n_states", "n_inputs", "f", "state_names", "chain_map"),
+    "high_gain": ("n_states", "n_inputs", "f", "state_names", "chain_map"),
     "ekf": ("states", "inputs", "constants", "f", "h"),
     "joint_kalman": ("n_outputs", "state_names"),
 }
@@ -41,13 +41,11 @@ DERIVES: dict[str, tuple[str, ...]] = {
 
 @dataclass
 class Derivation:
-    """The derived parameters (short names), the figures and notes for fto-design, and for
-    the observability form through a map the matrix T (observer state z = T x_plant)."""
+    """The derived parameters (short names), and the figures and notes for fto-design."""
 
     params: dict[str, Any]
     figures: dict[str, str] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
-    chain_map: np.ndarray | None = None
 
 
 def _flat(M: np.ndarray) -> list[float]:
@@ -256,11 +254,11 @@ def _chain(plant: Plant, who: str) -> Derivation:
     if not 2 <= plant.n <= 6:
         raise ConfigError("plant.states", f"{who} takes 2 to 6 states, got {plant.n}")
     cf = chain_form(plant, who)
-    params = dict(n_states=plant.n, n_inputs=plant.m, f=cf.f_n, state_names=list(plant.states))
+    params = dict(n_states=plant.n, n_inputs=plant.m, f=cf.f_n, state_names=list(plant.states),
+                  chain_map=[] if cf.identity else _flat(cf.T))
     figures = {"observability form": "the plant itself (x0' = x1, ..., y = x0)" if cf.identity
                else "z = T x, T = d(h, h', ...)/dx = " + np.array2string(cf.T, precision=6)}
-    return Derivation(params, figures, _nominal_note(plant, who),
-                      chain_map=None if cf.identity else cf.T)
+    return Derivation(params, figures, _nominal_note(plant, who))
 
 
 # ----------------------------------------------------------------- model-free

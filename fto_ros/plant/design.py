@@ -23,7 +23,7 @@ def _shape(name: str, plant: Plant, params: Mapping[str, Any]) -> tuple[int, int
     n, m, p, q = plant.n, plant.m, plant.p, plant.q
     n1 = params.get("n_unmeasured", 0)
     return {"A": (n, n), "B": (n, m), "C": (p, n), "D": (n, q), "A1": (n1, n1), "A2": (p, n1),
-            "state_map": (n, n)}.get(name)
+            "state_map": (n, n), "chain_map": (n, n)}.get(name)
 
 
 def _value(type_name: str, name: str, value: Any, plant: Plant,

@@ -10,6 +10,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from ..core.errors import BadArgument
+
 
 def match_truth(t_est_ns: np.ndarray, t_truth_ns: np.ndarray,
                 x_truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -32,7 +34,7 @@ def match_truth(t_est_ns: np.ndarray, t_truth_ns: np.ndarray,
     if t_tr.size == 0 or t_est.size == 0:
         return mask, x_at
     if np.any(np.diff(t_tr) < 0):
-        raise ValueError("truth times must be non-decreasing")
+        raise BadArgument("truth times must be non-decreasing")
     # index of the last truth sample <= t_est
     hi = np.searchsorted(t_tr, t_est, side="right") - 1
     inside = (hi >= 0) & (t_est <= t_tr[-1])

@@ -14,7 +14,8 @@ import numpy as np
 
 from ..bag import BagWriter
 from ..bag.cdr import F64_ARRAY, JOINT_STATE, Encoders
-from ..runner.runner import LEVEL_NAMES, convergence_fields
+from ..runner.runner import convergence_fields
+from ..runner.status import LEVEL_NAMES
 from . import events as E
 from .blocks import OutputBlock
 from .streams import ROLE_TYPES

@@ -49,7 +49,8 @@ from ..bag.writer import warm_up
 from ..core.output_dir import check_output
 from ..plant.block import units_of
 from ..runner.params_file import load_params_files
-from ..runner.runner import LEVEL_NAMES, Runner
+from ..runner.runner import Runner
+from ..runner.status import LEVEL_NAMES
 from . import joint_metrics as JM
 from . import metrics as M
 from .run import _Run, _run

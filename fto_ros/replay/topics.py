@@ -2,13 +2,9 @@
 resolution, and the error a replay stops with."""
 from __future__ import annotations
 
-from ..core.errors import FtoRosError
+from ..core.errors import ReplayError
 
 DEFAULT_NODE_NAME = "observer_node"
-
-
-class ReplayError(FtoRosError):
-    """The replay cannot run (e.g. the bag lacks a topic the configuration needs)."""
 
 
 def node_fqn(node_name: str | None) -> str:

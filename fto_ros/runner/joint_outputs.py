@@ -1,6 +1,8 @@
 """What the per-joint mode publishes for one message: the runner's per-joint arrays ->
 the fields of one JointState (position, velocity, effort per joint) and the labels of
 the per-state outputs.  ROS-free: the node builds its messages from it, and the replay can.
+(Without joints, ``estimated_joint_states`` reads the settings that map a whole plant's
+estimate onto joints.)
 
 Only the joints whose sample gave an output this message appear (a JointState may name a
 subset of the joints, as ``robot_state_publisher`` and ``joint_state_publisher`` take it):
@@ -12,9 +14,32 @@ estimate where the observer has one; a field no joint's observer fills stays emp
 """
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
+
+from ..core.errors import ConfigError
+from .settings import FIELDS
+
+
+def estimated_joint_states(settings: Mapping[str, Any]):
+    """(names, per JointState field the state indices or None) of the
+    ``estimated_joint_states.*`` settings, or None when they name no joint."""
+    names = settings["estimated_joint_states.joint_names"]
+    if not names:
+        return None
+    idx = []
+    for field in FIELDS:
+        ix = settings[f"estimated_joint_states.{field}_states"]
+        if not ix or all(i < 0 for i in ix):
+            idx.append(None)
+        elif any(i < 0 for i in ix):
+            raise ConfigError(f"estimated_joint_states.{field}_states",
+                              "give an index for every joint or for none (JointState fields "
+                              "are all-or-nothing)")
+        else:
+            idx.append(ix)
+    return names, idx
 
 
 class JointOutputPlan:

@@ -24,6 +24,8 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
+from ..core.errors import BadArgument, DecodeError
+
 CDR_LE = b"\x00\x01\x00\x00"
 _U32 = struct.Struct("<I")
 _STAMP = struct.Struct("<iI")
@@ -82,7 +84,7 @@ def _parse(p) -> _Layout:
     """Full parse of one payload (bytes-like): its layout; ValueError for anything unusual."""
     n = len(p)
     if n < 12 or bytes(p[:4]) != CDR_LE:
-        raise ValueError("not a little-endian XCDR1 payload" if n >= 4 else "truncated payload")
+        raise DecodeError("not a little-endian XCDR1 payload" if n >= 4 else "truncated payload")
     spans = []
     pos = 12  # after the header (4) and the stamp (8)
 
@@ -90,7 +92,7 @@ def _parse(p) -> _Layout:
         nonlocal pos
         pos += (4 - pos) % 4
         if pos + 4 > n:
-            raise ValueError("truncated payload")
+            raise DecodeError("truncated payload")
         (v,) = _U32.unpack_from(p, pos)
         pos += 4
         return v
@@ -100,21 +102,21 @@ def _parse(p) -> _Layout:
         start = pos + (4 - pos) % 4
         size = u32()
         if size == 0 or pos + size > n or p[pos + size - 1] != 0:
-            raise ValueError("malformed string")
+            raise DecodeError("malformed string")
         raw = bytes(p[pos:pos + size - 1])
         pos += size
         spans.append((start, pos))
         try:
             return raw.decode("utf-8")
         except UnicodeDecodeError:
-            raise ValueError("a string is not UTF-8") from None
+            raise DecodeError("a string is not UTF-8") from None
 
     frame_id = string()
     start = pos + (4 - pos) % 4
     count = u32()
     spans.append((start, pos))
     if count > (n - pos) // 5:  # every name takes at least 5 bytes (length + NUL)
-        raise ValueError("name count exceeds the payload")
+        raise DecodeError("name count exceeds the payload")
     name = tuple(string() for _ in range(count))
     arrays = []
     for _ in range(3):
@@ -124,7 +126,7 @@ def _parse(p) -> _Layout:
         if count:
             pos += (4 - pos) % 8
             if count > (n - pos) // 8:
-                raise ValueError("array length exceeds the payload")
+                raise DecodeError("array length exceeds the payload")
             arrays.append((pos, count))
             pos += 8 * count
         else:
@@ -237,7 +239,7 @@ class JointStateEncoder:
         self.names = tuple(str(nm) for nm in names)
         self.sizes = tuple(sizes) if sizes is not None else (len(self.names),) * 3
         if len(self.sizes) != 3 or any(int(k) != k or k < 0 for k in self.sizes):
-            raise ValueError(f"sizes must be three lengths >= 0, got {sizes}")
+            raise BadArgument(f"sizes must be three lengths >= 0, got {sizes}")
         buf = bytearray(CDR_LE + b"\x00" * 8)
 
         def align(a: int) -> None:
@@ -270,12 +272,12 @@ class JointStateEncoder:
         """The payload of one message (ValueError for a stamp outside int32/uint32 or
         arrays of other lengths than ``sizes``; None for an empty array)."""
         if not (_SEC_RANGE[0] <= sec <= _SEC_RANGE[1] and 0 <= nanosec < 2**32):
-            raise ValueError(f"stamp ({sec}, {nanosec}) does not fit builtin_interfaces/Time")
+            raise BadArgument(f"stamp ({sec}, {nanosec}) does not fit builtin_interfaces/Time")
         _STAMP.pack_into(self._buf, 4, sec, nanosec)
         for view, values, k in zip(self._views, (position, velocity, effort), self.sizes):
             got = 0 if values is None else len(values)
             if got != k:
-                raise ValueError(f"an array of length {got} where the layout has {k}")
+                raise BadArgument(f"an array of length {got} where the layout has {k}")
             if k:
                 view[:] = values
         return bytes(self._buf)

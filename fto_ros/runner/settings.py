@@ -11,7 +11,6 @@ from typing import Any, Mapping
 from ..core.errors import ConfigError
 from ..observers import REGISTRY, observer_class
 from ..core.params import Param, check_size, resolve
-from ..observers.track import TrackObserver
 from ..plant import expand as expand_plant
 from .params_file import flatten, load_params_file, load_params_files  # noqa: F401  (re-exported)
 
@@ -139,26 +138,23 @@ ROS_BUILTIN = ("use_sim_time", "start_type_description_service")
 
 
 def _observer(flat: Mapping[str, Any], type_name: Any) -> tuple[type, dict[str, Any], dict[str, Any]]:
-    """(class, typed config, flat parameters after the plant expansion) of observer
-    ``type_name`` as configured by ``flat`` (its section, the plant block)."""
+    """(registered class, typed config, flat parameters after the plant expansion) of
+    observer ``type_name`` as configured by ``flat`` (its section, the plant block); a
+    composition's config holds each child's (type name, typed config) under
+    ``<role>_observer`` (observers/registry.py ``make``)."""
+    cls = observer_class(type_name)
     sub = dict(flat)
     sub["observer.type"] = type_name
-    if type_name == TrackObserver.TYPE:            # a composition: its children expand
+    if cls.CHILD_ROLES:                            # a composition: its children expand
         sub = {k: v for k, v in sub.items() if not k.startswith("plant.")}
-        adapt = None
     else:
-        sub, adapt = expand_plant(sub)
-    cls = observer_class(type_name)
-    if adapt is not None:
-        cls = adapt(cls)
+        sub = expand_plant(sub)
     section = cls.TYPE + "."
     values = {k[len(section):]: v for k, v in sub.items() if k.startswith(section)}
     cfg = resolve(cls.PARAMS, values, prefix=section)
-    for role in getattr(cls, "CHILD_ROLES", ()):
-        child, child_cfg, _ = _observer(flat, cfg[role])
-        cfg[role + "_observer"] = (child, child_cfg)
-    if hasattr(cls, "composed_class"):             # the class that runs these children
-        cls = cls.composed_class(cfg)
+    for role in cls.CHILD_ROLES:
+        _, child_cfg, _ = _observer(flat, cfg[role])
+        cfg[role + "_observer"] = (cfg[role], child_cfg)
     return cls, cfg, sub
 
 
@@ -168,7 +164,7 @@ def split(flat: Mapping[str, Any]) -> tuple[dict[str, Any], type, dict[str, Any]
     Sections of other registered observers are ignored (one file may carry
     several); any other unknown name is refused.  A plant block (``plant.*``) is
     expanded first into the chosen observer's explicit parameters (fto_ros.plant); a
-    composition (``track``) gets its children's classes and configs in its config.
+    composition (``track``) gets its children's type names and configs in its config.
     """
     for k, v in flat.items():                  # sizes first: nothing is parsed before
         check_size(k, v)

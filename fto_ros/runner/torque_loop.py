@@ -25,9 +25,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.reasons import CODE, REJECTIONS
-from ..rigid.collision import Collision, detection_time
-from ..rigid.external_torque import SampleRejected
-from ..rigid.steps import MAX_POSITION, MAX_TORQUE
+from ..arm.collision import Collision, detection_time
+from ..arm.external_torque import SampleRejected
+from ..arm.steps import MAX_POSITION, MAX_TORQUE
 from .intake import JointIntake
 from .torque_settings import TorqueSetup
 

@@ -19,9 +19,9 @@ import numpy as np
 
 from ..core.errors import ConfigError, short
 from ..core.params import Param
-from ..rigid import RigidBodyModel, load_model
-from ..rigid.collision import CollisionDetector
-from ..rigid.external_torque import MomentumObserver, WindowEstimator
+from ..arm import RigidBodyModel, load_model
+from ..arm.collision import CollisionDetector
+from ..arm.external_torque import MomentumObserver, WindowEstimator
 
 TORQUE_SETTINGS: tuple[Param, ...] = (
     Param("plant.urdf", "string", "", "the arm's URDF file (or robot_description; exactly one)"),

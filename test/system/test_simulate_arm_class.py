@@ -13,7 +13,7 @@ from fto_ros.bag import BagReader
 from fto_ros.cli.arm_bag import read_arm_bag
 from fto_ros.cli.simulate import main
 from fto_ros.models.arm_urdf import without_mimic
-from fto_ros.rigid import load_model
+from fto_ros.arm import load_model
 
 ROOT = Path(__file__).resolve().parents[2]
 URDF = ROOT / "urdf" / "panda_gripper.urdf"

@@ -53,6 +53,7 @@ from ...core.expressions import NamedFunction, compile_exprs, parse
 from ...core.model_code import ModelFunction
 from .. import kernel as K
 from ..base import ConfigError, KernelObserver, Param
+from ..chain_map import PARAM as CHAIN_MAP, chain_map, write_map
 from . import kernel
 from .design import default_c, gain_exprs, gains_numeric
 
@@ -93,11 +94,13 @@ class GlobalNormObserver(KernelObserver):
         Param("check_y_max", "double", 1.0e3, "gamma_1(y) >= 0 is checked for |y| <= check_y_max",
               min=0.0),
         Param("state_names", "string_array", [], "names of the states (empty: x0, x1, ...)"),
+        CHAIN_MAP,
     )
 
     def __init__(self, cfg: dict):
         m = cfg["n_states"]
         n = m - 1
+        T = chain_map(cfg, m, P)
         self.n_states, self.n_outputs, self.n_inputs = m, 1, cfg["n_inputs"]
         self.reduced = cfg["form"] == "reduced"
         self.quadratic = cfg["output_hold"] == "quadratic"
@@ -136,6 +139,8 @@ class GlobalNormObserver(KernelObserver):
         self.warnings: list[str] = []
         self._check_conditions(cfg)
         self._build(outs, wsym, xnames)
+        if T is not None:
+            self.map_states(T)
 
     # -- parameter checks ------------------------------------------------------------
     def _eval(self, w):
@@ -222,12 +227,10 @@ class GlobalNormObserver(KernelObserver):
         self._restart(None)
 
     def map_states(self, T: np.ndarray) -> None:
-        """Run on z = T x and take and publish plant coordinates (plant/mapped.py): an initial
+        """Run on z = T x and take and publish plant coordinates (chain_map.py): an initial
         estimate x0 becomes T x0, the estimate is T^-1 z_hat."""
         m = self.n_states
-        T = np.array(T, dtype=float)
-        self._c[kernel.T_MAP:kernel.T_MAP + 2 * m * m] = np.concatenate(
-            (T.ravel(), np.linalg.inv(T).ravel()))
+        write_map(self._c, kernel.T_MAP, T)
         self._ic[kernel.MAPPED] = 1
         self._ic[K.EST] = kernel.published(m, self._dim, self.n_inputs)
         self._restart(None)

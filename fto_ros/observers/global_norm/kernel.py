@@ -10,7 +10,7 @@ State:   header | w, y, has y_prev, y_prev, h_prev, gamma_1(y), gamma_hat, satur
          active, saturated steps, steps | x_hat (m) | k(w) (dim) | u held over the step (n_u) |
          the published estimate T^-1 x_hat (m; only with a state map)
 Consts:  header | w0 | T (m x m), T^-1 (m x m): the observer runs on z = T x (the plant's
-         observability form, plant/mapped.py; identity without a map)
+         observability form, observers/chain_map.py; identity without a map)
 Ints:    header | m, dim (m, or m - 1 in the reduced form), n_u, reduced, quadratic hold,
          scratch base, state map (0/1)
 Work:    scratch: the gains at w(mid) and w(end) (1 + m + dim each), e^(A h) (dim^2), its

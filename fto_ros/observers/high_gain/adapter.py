@@ -31,6 +31,7 @@ from ...core.model_code import ModelFunction
 from ...core.step_cache import cache_floats, cache_init
 from .. import kernel as K
 from ..base import ConfigError, KernelObserver, Param
+from ..chain_map import PARAM as CHAIN_MAP, chain_map, write_map
 from . import kernel
 
 P = "high_gain."
@@ -59,10 +60,12 @@ class HighGainObserver(KernelObserver):
         Param("output_hold", "string", "quadratic", "y between samples: 'foh' or 'quadratic'",
               choices=("foh", "quadratic")),
         Param("state_names", "string_array", [], "names of the states (empty: x0, x1, ...)"),
+        CHAIN_MAP,
     )
 
     def __init__(self, cfg: dict):
         m = cfg["n_states"]
+        T = chain_map(cfg, m, P)
         self.n_states, self.n_outputs, self.n_inputs = m, 1, cfg["n_inputs"]
         if cfg["f"] is None:
             raise ConfigError(P + "f", "required: f_n(y, x1, .., xn)")
@@ -91,6 +94,8 @@ class HighGainObserver(KernelObserver):
         if len(self.state_names) != m:
             raise ConfigError(P + "state_names", f"expected {m} names, got {len(self.state_names)}")
         self._build()
+        if T is not None:
+            self.map_states(T)
 
     def _build(self) -> None:
         """The kernel's arrays (kernel.py has the layout)."""
@@ -109,12 +114,10 @@ class HighGainObserver(KernelObserver):
         self._st[K.HEALTH] = float(self.L)
 
     def map_states(self, T: np.ndarray) -> None:
-        """Run on z = T x and take and publish plant coordinates (plant/mapped.py): an initial
+        """Run on z = T x and take and publish plant coordinates (chain_map.py): an initial
         estimate x0 becomes T x0, the estimate is T^-1 z_hat."""
         m = self.n_states
-        T = np.array(T, dtype=float)
-        o = kernel.t_map(m)
-        self._c[o:o + 2 * m * m] = np.concatenate((T.ravel(), np.linalg.inv(T).ravel()))
+        write_map(self._c, kernel.t_map(m), T)
         self._ic[kernel.MAPPED] = 1
         self._ic[K.EST] = kernel.published(m, self.n_inputs)
         self._restart(None)

@@ -10,7 +10,7 @@ State:   header | y, has y_prev, y_prev, h_prev, saturation active, saturated st
          x_hat (m) | u held over the step (n_u) | the published estimate T^-1 x_hat (m; only
          with a state map)
 Consts:  header | M | the gains G (m) | c = -G (m) | T (m x m), T^-1 (m x m): the observer
-         runs on z = T x (plant/mapped.py; identity without a map)
+         runs on z = T x (observers/chain_map.py; identity without a map)
 Ints:    header | m, n_u, the model at the estimate (0/1), quadratic hold, cache base,
          cache slots, scratch base, state map (0/1)
 Work:    the cache of e^(A h), then scratch: e^(A h) built (m^2), its work (2 m^2), r0, r1,

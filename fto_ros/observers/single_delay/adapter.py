@@ -23,16 +23,16 @@ and the single delay tau give, for every t >= t0 + tau (eq. 13),
 exactly (Theorem 1), whatever the initial conditions.  S is the Gramian (5) of
 lambda(r) = A2 (A1 + kI)^-1 [I - e^{(A1 + kI) r}], R = S^-1 N (6), H (6).
 
-Two forms share this adapter's parameters, checks and design (design.py) and are two
-classes with a kernel each, registered once as ``single_delay``: constructing
-``SingleDelayObserver`` gives the form ``measurement`` names.
+Two forms share this adapter's parameters, checks and design (design.py), each with a
+kernel of its own; the observer runs the one ``measurement`` names (``self.form``: what
+the forms differ in, below).
 
-- ``ContinuousSingleDelay`` (``measurement: continuous``, Theorem 1; continuous.py): the
+- ``Continuous`` (``measurement: continuous``, Theorem 1; continuous.py): the
   linear extension is integrated exactly between samples (Y and F(Y, u) first-order hold,
   u held or linear), the delayed combination of psi1, psi2 is kept in a Hermite delay ring,
   so irregular sampling is fine.  The only approximation is the hold of Y between samples:
   O(h^2).
-- ``SampledSingleDelay`` (``measurement: sampled``, Theorem 2, eq. 39; sampled.py): Y only
+- ``Sampled`` (``measurement: sampled``, Theorem 2, eq. 39; sampled.py): Y only
   at sparse instants t_j; between them the predictor omega' = A2 xi_e - k omega +
   F2(omega, u) stands in for Y and is reset to Y(t_j) at each sample; integrated in
   sub-steps of at most ``substep`` (exact linear part, Heun for the nonlinear F), and
@@ -47,7 +47,6 @@ between them (fourth order), and memory per observer stays fixed whatever the ra
 """
 from __future__ import annotations
 
-import abc
 import math
 import warnings
 
@@ -69,8 +68,8 @@ P = "single_delay."
 
 
 class SingleDelayObserver(KernelObserver):
-    """The single-delay observer; ``SingleDelayObserver(cfg)`` is the form ``measurement``
-    names (ContinuousSingleDelay or SampledSingleDelay), both registered as single_delay."""
+    """The single-delay observer, in the form ``measurement`` names (``form``: Continuous
+    or Sampled)."""
 
     TYPE = "single_delay"
     DESCRIPTION = "Mazenc & Malisoff 2022: exact after the delay tau (fixed time), reduced order"
@@ -105,12 +104,8 @@ class SingleDelayObserver(KernelObserver):
               "modes: the internal states then grow exponentially (short runs only)", read_only=False),
     )
 
-    def __new__(cls, cfg: dict | None = None):
-        if cls is SingleDelayObserver and cfg is not None:
-            cls = SampledSingleDelay if cfg["measurement"] == "sampled" else ContinuousSingleDelay
-        return super().__new__(cls)
-
     def __init__(self, cfg: dict):
+        self.form = Sampled if cfg["measurement"] == "sampled" else Continuous
         n1, q, m = cfg["n_unmeasured"], cfg["n_outputs"], cfg["n_inputs"]
         self.n1, self.q = n1, q
         self.n_states, self.n_outputs, self.n_inputs = n1 + q, q, m
@@ -202,16 +197,17 @@ class SingleDelayObserver(KernelObserver):
         """The kernel's arrays (kernel.py has the layout)."""
         n1, q, m = self.n1, self.q, self.n_inputs
         ext = self.extension
-        form = self.KERNEL
+        kern = self.form.KERNEL
         mats = {SD.C_PMAP: self.Pmap, SD.C_MD: ext["Md"], SD.C_MDA: ext["MdA"],
                 SD.C_MDB: ext["MdB"], SD.C_ME: ext["Me"], SD.C_R: ext["R"], SD.C_A2: self.A2}
-        mats.update(self._form_matrices())
+        mats.update(self.form.matrices(self))
         window = self.WINDOW_ENTRIES
         scalars = (self.k, self.tau, self.tau / continuous_form.FILL_POINTS, self.substep,
                    self.tau / window, window)
-        c, ic, wk, size = SD.build(n1, q, m, self.foh_input, self.sampled, self._max_step(),
-                                   scalars, mats, self._caches(), SD.ring_capacity(window, form.PUSHES),
-                                   form.scratch_floats(n1, q, m))
+        c, ic, wk, size = SD.build(n1, q, m, self.foh_input, self.form.SAMPLED,
+                                   self.form.max_step(self), scalars, mats,
+                                   self.form.caches(self), SD.ring_capacity(window, kern.PUSHES),
+                                   kern.scratch_floats(n1, q, m))
         ys, us = self.F.y_syms, self.F.u_syms
         self._build_kernel(c, ic, wk, size, models=(ModelFunction(self.F.exprs, [[], ys, us]),))
         self._st[K.GUARANTEED] = self.tau
@@ -221,21 +217,9 @@ class SingleDelayObserver(KernelObserver):
     #: entries tau / WINDOW_ENTRIES apart (the ring's memory is fixed: kernel.py)
     WINDOW_ENTRIES = 4096
 
-    # -- what the forms differ in ------------------------------------------------------
-    FORM = ""
-    sampled = False
-
-    @abc.abstractmethod
-    def _form_matrices(self) -> dict:
-        """{C_ index: matrix} of the form's own constants."""
-
-    @abc.abstractmethod
-    def _caches(self) -> list:
-        """[(W_ index, slots, floats)] of the form's step caches."""
-
-    @abc.abstractmethod
-    def _max_step(self) -> float:
-        """The longest interval the form bridges with bounded work (s)."""
+    @property
+    def KERNEL(self):          # noqa: N802  (KernelObserver's name for the kernel module)
+        return self.form.KERNEL
 
     # -- what the state says ---------------------------------------------------------
     @property
@@ -243,6 +227,12 @@ class SingleDelayObserver(KernelObserver):
         """Model time the observer's state is at (the last sample, or a later input of the
         sampled form); None before the first sample of a run."""
         return float(self._st[self._ic[SD.S_T]]) if self.started else None
+
+    @property
+    def last_substeps(self) -> int:
+        """Predictor sub-steps the last call took (the sampled form; bounded by
+        MAX_SUBSTEPS), 0 for the continuous form."""
+        return sampled_form.last_substeps(self._wk, self._ic) if self.form.SAMPLED else 0
 
     @property
     def delay_entries(self) -> int:
@@ -253,7 +243,7 @@ class SingleDelayObserver(KernelObserver):
     def diagnostics(self):
         d = self.design
         out = {
-            "form": self.FORM,
+            "form": self.form.NAME,
             "tau (guaranteed convergence time, s)": f"{self.tau:.6g}",
             "k": f"{self.k:.6g}",
             "cond(S)": f"{d['cond_S']:.4g}",
@@ -263,7 +253,7 @@ class SingleDelayObserver(KernelObserver):
             **({"F2 note": self.F2_note} if self.F2_note else {}),
             "delay buffer entries": str(self.delay_entries),
         }
-        if self.sampled:
+        if self.form.SAMPLED:
             out["Theorem 2 mu"] = f"{self.mu:.4g}"
             out["Theorem 2 needs T_bar <"] = f"{1.0 / self.mu:.4g} s"
             if self.T_bar > 0:
@@ -272,47 +262,52 @@ class SingleDelayObserver(KernelObserver):
         return out
 
 
-class ContinuousSingleDelay(SingleDelayObserver):
+class Continuous:
     """Theorem 1: Y at every sample (continuous.py)."""
 
     KERNEL = continuous_form
-    FORM = "continuous (Theorem 1)"
+    NAME = "continuous (Theorem 1)"
+    SAMPLED = False
 
-    def _form_matrices(self):
-        ext = self.extension
+    @staticmethod
+    def matrices(obs: SingleDelayObserver) -> dict:
+        """{C_ index: matrix} of the form's own constants."""
+        ext = obs.extension
         return {SD.C_A: ext["Az"], SD.C_B: ext["Bz"], SD.C_MO: readout(ext)}
 
-    def _caches(self):
-        return [(SD.W_CACHE, continuous_form.SLOTS, continuous_form.cache_size(self.n1, self.q))]
+    @staticmethod
+    def caches(obs: SingleDelayObserver) -> list:
+        """[(W_ index, slots, floats)] of the form's step caches."""
+        return [(SD.W_CACHE, continuous_form.SLOTS, continuous_form.cache_size(obs.n1, obs.q))]
 
-    def _max_step(self):
+    @staticmethod
+    def max_step(obs: SingleDelayObserver) -> float:
+        """The longest interval the form bridges with bounded work (s)."""
         return math.inf
 
 
-class SampledSingleDelay(SingleDelayObserver):
+class Sampled:
     """Theorem 2: Y at sparse instants, the predictor between them (sampled.py); the
     runner's input messages advance it (ADVANCE)."""
 
     KERNEL = sampled_form
-    FORM = "sampled (Theorem 2)"
-    sampled = True
+    NAME = "sampled (Theorem 2)"
+    SAMPLED = True
 
-    def _form_matrices(self):
-        before = predictor(self.A2, self.k, self.extension, after=False)
-        after = predictor(self.A2, self.k, self.extension, after=True)
+    @staticmethod
+    def matrices(obs: SingleDelayObserver) -> dict:
+        before = predictor(obs.A2, obs.k, obs.extension, after=False)
+        after = predictor(obs.A2, obs.k, obs.extension, after=True)
         return {SD.C_A: before[0], SD.C_B: before[1], SD.C_A_AFTER: after[0],
                 SD.C_B_AFTER: after[1]}
 
-    def _caches(self):
-        size = sampled_form.cache_size(self.n1, self.q)
+    @staticmethod
+    def caches(obs: SingleDelayObserver) -> list:
+        size = sampled_form.cache_size(obs.n1, obs.q)
         return [(SD.W_CACHE, sampled_form.SLOTS, size),
                 (SD.W_CACHE_AFTER, sampled_form.SLOTS, size)]
 
-    def _max_step(self):
+    @staticmethod
+    def max_step(obs: SingleDelayObserver) -> float:
         # the predictor sub-steps the interval: at most MAX_SUBSTEPS of them
-        return self.substep * MAX_SUBSTEPS
-
-    @property
-    def last_substeps(self) -> int:
-        """Predictor sub-steps the last call took (bounded by MAX_SUBSTEPS)."""
-        return sampled_form.last_substeps(self._wk, self._ic)
+        return obs.substep * MAX_SUBSTEPS

@@ -1,8 +1,6 @@
-"""Acquire, then track: the design (design.py), the compiled composition (adapter.py,
-kernel.py) and, for acquirers not yet compiled, the Python one (legacy.py)."""
-from .adapter import TrackKernelObserver
-from .design import ACQUIRERS, MODE_NAMES, TRACKERS, TrackObserver
-from .legacy import LegacyTrackObserver
+"""Acquire, then track: the design (design.py) and the compiled composition that runs it
+(adapter.py, kernel.py)."""
+from .adapter import TrackObserver
+from .design import ACQUIRERS, MODE_NAMES, TRACKERS
 
-__all__ = ["ACQUIRERS", "MODE_NAMES", "TRACKERS", "LegacyTrackObserver", "TrackKernelObserver",
-           "TrackObserver"]
+__all__ = ["ACQUIRERS", "MODE_NAMES", "TRACKERS", "TrackObserver"]

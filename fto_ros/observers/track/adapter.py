@@ -16,17 +16,17 @@ from ...core.model_code import none_kernel
 from .. import kernel as K
 from ..base import KernelObserver
 from . import kernel
-from .design import TrackObserver
+from .design import Make, TrackDesign
 
 
-class TrackKernelObserver(TrackObserver, KernelObserver):
-    """``track`` with a compiled acquirer and tracker, run by the composition's kernel."""
+class TrackObserver(TrackDesign, KernelObserver):
+    """``observer.type: track``: the design (design.py) run by the composition's kernel."""
 
     KERNEL = kernel
     _SHARED = KernelObserver._SHARED + ("_model_fns",)
 
-    def __init__(self, cfg: dict):
-        TrackObserver.__init__(self, cfg)
+    def __init__(self, cfg: dict, make: Make):
+        TrackDesign.__init__(self, cfg, make)
         self.tracker.P0 = self.handover_covariance
         self._compose()
         self.reset()

@@ -37,21 +37,22 @@ threshold (>= 1 re-acquires).  No unknown-input estimate is published (the track
 none).
 
 This module is the design (parameters, the children, the test's threshold, the hand-over
-covariance, diagnostics); :class:`TrackObserver` builds the class that runs it: the
-compiled composition (adapter.py and kernel.py, protocol in observers/kernel.py) when the
-acquirer is a compiled kernel, else the previous per-sample Python composition (legacy.py)
-until every acquirer family is compiled.  ROS-free.
+covariance, diagnostics); the observer that runs it is the compiled composition
+(adapter.py's :class:`TrackObserver` and kernel.py, protocol in observers/kernel.py), for
+every acquirer, one whose estimate is mapped back to the plant's coordinates included
+(global_norm's chain_map: its kernel publishes plant coordinates).  ROS-free.
 """
 from __future__ import annotations
 
+import abc
 import math
 import re
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 from scipy.stats import chi2
 
-from ..base import ConfigError, KernelObserver, Observer, Param
+from ..base import ConfigError, Observer, Param
 from ..ekf import ExtendedKalmanFilter
 
 P = "track."
@@ -69,15 +70,13 @@ MAX_NOISE_SKIP = 20_000
 NOISE_SEED = 20261201
 
 
-def compiled_child(cls: type) -> bool:
-    """Whether observers of ``cls`` can run inside the compiled composition: a compiled
-    kernel whose estimate is its state's (no coordinate map applied in Python)."""
-    return issubclass(cls, KernelObserver) and getattr(cls, "state_map", None) is None
+#: what builds an observer from its type name and typed config (observers/registry.py make)
+Make = Callable[[str, dict], Observer]
 
 
-class TrackObserver(Observer):
-    """The composition's design; ``TrackObserver(cfg)`` is an observer of the class
-    :meth:`composed_class` picks."""
+class TrackDesign(Observer):
+    """The composition's design: its children, its test's constants, the hand-over
+    covariance, its diagnostics (the running composition, adapter.py, keeps the state)."""
 
     TYPE = "track"
     DESCRIPTION = ("acquire, then track: a guaranteed-time observer hands over to a Kalman "
@@ -114,26 +113,13 @@ class TrackObserver(Observer):
               min=0.0, read_only=False),
     )
 
-    def __new__(cls, cfg=None):
-        if cls is TrackObserver and cfg is not None:
-            cls = TrackObserver.composed_class(cfg)
-        return super().__new__(cls)
-
-    @staticmethod
-    def composed_class(cfg: dict) -> type["TrackObserver"]:
-        """The class that runs the composition configured by ``cfg``: compiled when the
-        acquirer is a compiled kernel (the tracker always is), else the Python composition
-        of the families not yet compiled."""
-        from .adapter import TrackKernelObserver
-        from .legacy import LegacyTrackObserver
-        acq_cls = cfg["acquirer_observer"][0]
-        return TrackKernelObserver if compiled_child(acq_cls) else LegacyTrackObserver
-
-    def __init__(self, cfg: dict):
-        (acq_cls, acq_cfg), (trk_cls, trk_cfg) = cfg["acquirer_observer"], cfg["tracker_observer"]
-        self._make_acquirer = lambda: acq_cls(acq_cfg)
+    def __init__(self, cfg: dict, make: Make):
+        """``cfg``: the typed parameters, and per child role its (type name, typed config)
+        under ``<role>_observer``; ``make`` builds the children."""
+        (acq_type, acq_cfg), (trk_type, trk_cfg) = cfg["acquirer_observer"], cfg["tracker_observer"]
+        self._make_acquirer = lambda: make(acq_type, acq_cfg)
         self.acquirer = self._make_acquirer()
-        self.tracker = _kalman_tracker(trk_cls, trk_cfg, cfg["sample_period"])
+        self.tracker = _kalman_tracker(make, trk_type, trk_cfg, cfg["sample_period"])
         a, k = self.acquirer, self.tracker
         for what in ("n_states", "n_outputs", "n_inputs"):
             if getattr(a, what) != getattr(k, what):
@@ -194,10 +180,10 @@ class TrackObserver(Observer):
         return C + np.eye(self.n_states) * max(1e-300, 1e-12 * float(np.trace(C)))
 
     # -- what the running composition reports (its class keeps the state) --------------------
+    @abc.abstractmethod
     def _summary(self) -> tuple[int, int, int, int, int, float, int]:
         """(mode, hand-overs and re-acquisitions over the observer's life, the same since
         the last restart, the NIS window's sum and its length)."""
-        raise NotImplementedError
 
     @property
     def mode(self) -> str:
@@ -225,14 +211,15 @@ class TrackObserver(Observer):
         return out
 
 
-def _kalman_tracker(cls: type[Observer], cfg: dict, sample_period: float) -> ExtendedKalmanFilter:
+def _kalman_tracker(make: Make, type_name: str, cfg: dict,
+                    sample_period: float) -> ExtendedKalmanFilter:
     """The tracker: the ekf as configured, or the Kalman filter of a luenberger section."""
-    if cls.TYPE != "luenberger":                  # a Kalman filter already (TRACKERS)
-        return cls(cfg)
-    if cfg.get("design") != "kalman":
+    if type_name != "luenberger":                  # a Kalman filter already (TRACKERS)
+        return make(type_name, cfg)
+    if cfg["design"] != "kalman":
         raise ConfigError(P + "tracker", "a luenberger tracker needs luenberger.design: kalman "
                           "(its process and measurement noise are the tracker's noise model)")
-    lu = cls(cfg)                                     # validates A, B, C, F and the noise
+    lu = make(type_name, cfg)                         # validates A, B, C, F and the noise
     n, p, m = lu.n_states, lu.n_outputs, lu.n_inputs
     states = [f"s{i}" for i in range(n)]
     inputs = [f"u{i}" for i in range(m)]
@@ -251,6 +238,6 @@ def _kalman_tracker(cls: type[Observer], cfg: dict, sample_period: float) -> Ext
                    measurement_noise=[r / sample_period for r in cfg["measurement_noise"]],
                    initial_covariance=[], initial_state=cfg["initial_state"],
                    input_hold=cfg["input_hold"], max_step=0.01)
-    k = ExtendedKalmanFilter(ekf_cfg)
+    k = make("ekf", ekf_cfg)
     k.state_names = list(lu.state_names)
     return k

@@ -10,7 +10,7 @@ import pytest
 
 from fto_ros.models.arm import ArmSettings, Contact, Gripper, simulate_arm
 from fto_ros.models.arm_urdf import perturbed, without_mimic
-from fto_ros.rigid import load_model
+from fto_ros.arm import load_model
 
 ROOT = Path(__file__).resolve().parents[3]
 TEXT = (ROOT / "urdf" / "panda_gripper.urdf").read_text()

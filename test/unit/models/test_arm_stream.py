@@ -11,7 +11,7 @@ import pytest
 from fto_ros.core.errors import ConfigError
 from fto_ros.models import arm_stream
 from fto_ros.models.arm_urdf import COM_LENGTH, perturbed, trunk, urdf_joints, without_mimic
-from fto_ros.rigid import load_model
+from fto_ros.arm import load_model
 
 ROOT = Path(__file__).resolve().parents[3]
 PANDA = ROOT / "urdf" / "panda_gripper.urdf"

@@ -2,8 +2,8 @@
 
 Each is ``step(state, consts, h, y, u, ...) -> new state`` (y: the measured joint positions,
 u: the torques commanded at this sample, which act until the next one); the terms of the
-model (M, Mdot, C^T v, g, friction) are computed by the caller with Pinocchio and passed in
-as arrays. A step validates its inputs first and raises ``ValueError`` without touching
+model (M, Mdot, C^T v, g, friction) are computed by the caller (the model, arm/dynamics.py)
+and passed in as arrays. A step validates its inputs first and raises ``ValueError`` without touching
 ``state`` (it returns a new array). The ``make_*`` functions build ``consts`` and the initial
 state; the ``*_view``/``*_output`` helpers read a state. docs/external_torque.md derives them.
 

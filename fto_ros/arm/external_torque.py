@@ -1,6 +1,6 @@
 """External joint torques of an arm: the adapters around the pure steps of :mod:`.steps`.
 
-Each adapter owns a design (its constants), the restart and the calls to Pinocchio, and is
+Each adapter owns a design (its constants), the restart and the calls to the model, and is
 transactional: a sample it cannot use (not one finite value per joint, an absurd value, a
 stamp that is not one sample period after the last) raises :class:`SampleRejected` and
 leaves every state as it was; after a gap, ``reset()``. ``update(t, q, tau)`` takes the measured positions at t and the torques
@@ -42,6 +42,16 @@ def run_over(est, t, q, tau) -> tuple[np.ndarray, np.ndarray]:
 
 class SampleRejected(FtoRosError, ValueError):
     """A sample the estimator cannot use; its state is unchanged."""
+
+
+class DesignRefused(FtoRosError, ValueError):
+    """An estimator design that cannot be built (the message names the setting)."""
+
+
+#: most memory the window estimator's ring (M and Mdot of every sample of the window) may
+#: take: with the URDF's joint cap and T = 60 ms at 1 kHz, configuring stays within about
+#: 200 MB (benchmarks/bench_urdf_size.py)
+MAX_WINDOW_BYTES = 64 * 2 ** 20
 
 
 class _Estimator:
@@ -112,7 +122,12 @@ class WindowEstimator(_Estimator):
         #: the steps of :mod:`.steps_compiled` (default: when numba is on), else the numpy ones
         self.compiled = jit.ENABLED if compiled is None else bool(compiled)
         if not (8 <= W <= 2000 and abs(W * sample_period - window) < 1e-9 + 1e-6 * window):
-            raise ValueError(f"window: must be 8..2000 sample periods, got {window!r} s")
+            raise DesignRefused(f"window: must be 8..2000 sample periods, got {window!r} s")
+        ring = 8 * (W + 1) * (5 * model.n + 2 * model.n ** 2)
+        if ring > MAX_WINDOW_BYTES:
+            raise DesignRefused(f"window: {W} samples of {model.n} joints need {ring / 2 ** 20:.0f}"
+                                f" MiB, more than the {MAX_WINDOW_BYTES // 2 ** 20} MiB accepted: "
+                                f"a shorter window or fewer joints")
         self.samples = W
         self.window = W * sample_period
         self._red_c = steps.red_consts(velocity_order, velocity_L, velocity_rho)

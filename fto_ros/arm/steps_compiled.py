@@ -158,21 +158,3 @@ def window_step(state, consts, y, u, M, Md, phi, Md_c, phi_c, has_c, new):
                 e -= d[j - 1] * R[otau + i]
             est[i] += e
     return _finite(est)
-
-
-@jit
-def momentum_post(M, C, v, mass):
-    """(M with its lower triangle from the upper one, C + C^T, C^T v) of Pinocchio's CRBA
-    (upper triangle only) and Coriolis matrix; M is not read (an empty result) without
-    ``mass``."""
-    n = C.shape[0]
-    Ms = np.empty((n, n)) if mass else np.empty((0, 0))
-    Md = np.empty((n, n))
-    ctv = np.zeros(n)
-    for i in range(n):
-        for k in range(n):
-            if mass:
-                Ms[i, k] = M[i, k] if k >= i else M[k, i]
-            Md[i, k] = C[i, k] + C[k, i]
-            ctv[i] += C[k, i] * v[k]
-    return Ms, Md, ctv
