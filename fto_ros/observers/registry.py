@@ -17,6 +17,7 @@ from .ekf import ExtendedKalmanFilter
 from .global_norm import GlobalNormObserver
 from .high_gain import HighGainObserver
 from .hosm import HosmObserver
+from .joint_kalman import JointKalmanFilter
 from .luenberger import LuenbergerObserver
 from .newton_inversion import NewtonInversionObserver
 from .prescribed_time import PrescribedTimeObserver
@@ -25,7 +26,8 @@ from .track import TrackObserver
 
 REGISTRY: dict[str, type[Observer]] = {cls.TYPE: cls for cls in (
     NewtonInversionObserver, SingleDelayObserver, PrescribedTimeObserver, LuenbergerObserver,
-    HosmObserver, GlobalNormObserver, HighGainObserver, ExtendedKalmanFilter, TrackObserver)}
+    HosmObserver, GlobalNormObserver, HighGainObserver, ExtendedKalmanFilter, JointKalmanFilter,
+    TrackObserver)}
 
 
 def observer_class(type_name: str) -> type[Observer]:

@@ -138,7 +138,7 @@ def replay(bag_path, params_path, out_dir, *, node_name: str | None = None,
     try:                   # the bag is written; an output without its metrics is none
         m0 = time.perf_counter()
         metrics, plot_data = _metrics(runner, run, bag_path, params_path, out_dir, fqn, after,
-                                      tolerance)
+                                      tolerance, units_of(flat))
         metrics["params_files"] = [str(p) for p in params_paths]
         metrics["overrides"] = dict(overrides or {})
         metrics["timing_s"]["metrics"] = time.perf_counter() - m0
@@ -176,8 +176,9 @@ def _check_accepted(m: dict, min_accepted: float) -> None:
 
 
 def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_dir: Path,
-             fqn: str, after: float | None, tolerance: float) -> tuple[dict, dict]:
-    """(metrics dict, plot arguments) of a finished run."""
+             fqn: str, after: float | None, tolerance: float,
+             units: tuple = ([], [], [])) -> tuple[dict, dict]:
+    """(metrics dict, plot arguments) of a finished run; ``units``: plant.block.units_of."""
     obs, settings, inp = runner.observer, runner.settings, run.inputs
     info, streams = inp.info, inp.streams
     names = list(obs.state_names)
@@ -197,7 +198,8 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
     joint_errors = None
     if runner.joints:
         if "truth_joints" in inp.roles:
-            joint_errors, truth_note = JM.joint_errors(runner, run, streams.truth_joints, settle)
+            joint_errors, truth_note = JM.joint_errors(runner, run, streams.truth_joints, settle,
+                                                       units[0], units[1])
         # the per-joint estimates' columns stand for the plot's states (joint 0's shown)
         x_est, conv = x_est[:, 0], conv[:, 0]
     if "truth" in inp.roles:
@@ -211,7 +213,8 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
         mask, x_at = M.match_truth(t_est_ns, truth_t, truth_x)
         err = x_at[mask] - x_est[mask]
         settled = conv[mask, 0] >= settle - 1e-9  # time since (re)start, float round-off
-        errors = M.error_stats(err, names, settled)
+        state_units = units[0] if len(units[0]) == n else None
+        errors = M.error_stats(err, names, settled, state_units)
         errors.update(
             matched_samples=int(mask.sum()), settled_samples=int(settled.sum()),
             unmatched_samples=int((~mask).sum()),

@@ -38,6 +38,11 @@ SETTINGS: tuple[Param, ...] = (
           "input_fields), a constant may differ per joint ('name=[v1, ..., vJ]' in "
           "plant.constants). Empty: one observer over the plant (y and u as the other "
           "joint_states.* settings say)"),
+    Param("joint_overrides", "string_array", [], "per-joint mode (joints): observer parameters "
+          "that differ per joint, each 'section.name=[v_1, ..., v_J]' (one value per joint, "
+          "in the order of joints; a value is a number, or a list for an array parameter: "
+          "'joint_kalman.bandwidth=[30, 40, ...]', 'hosm.poles=[[-60, -70], ...]'); "
+          "fto-tune writes them", read_only=False),
     Param("joint_states.output_fields", "string_array", ["position"], "per-joint mode "
           "(joints): the JointState fields that give each joint's y, in the plant's output "
           "order", choices=FIELDS),
@@ -185,6 +190,9 @@ def check_settings(settings: Mapping[str, Any], n_states: int, n_outputs: int, n
     x0 = settings["observer.initial_estimate"]
     if x0 and len(x0) != n_states:
         raise ConfigError("observer.initial_estimate", f"expected {n_states} values, got {len(x0)}")
+    if settings["joint_overrides"] and not settings["joints"]:
+        raise ConfigError("joint_overrides", "per-joint values need the per-joint mode: list the "
+                          "joints in 'joints' (or set the observer's parameters directly)")
     if settings["joints"]:
         if settings["source"] != "joint_states":
             raise ConfigError("source", "per-joint mode (joints) reads every joint from one "

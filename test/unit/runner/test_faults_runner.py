@@ -234,7 +234,10 @@ REACQUIRE = {"cubic_escape_global_norm": 0.2, "cubic_escape_high_gain": 1.3, "dc
              # acquire then track: the burst is detected and re-acquired, and the acquirer
              # hands over tau later; junk still in its window makes the tracker inconsistent
              # again, a second re-acquisition: tau + the NIS window (measured 0.128 s)
-             "dc_motor_acquire_track": 0.16}
+             "dc_motor_acquire_track": 0.16,
+             # the model-free joint_kalman alone (back 0.021-0.040 s after the bursts) and
+             # acquired by hosm (0.199 s: a re-acquisition and hosm's 150-sample certificate)
+             "msd_joint_kalman": 0.06, "msd_track_joint_kalman": 0.3}
 
 
 def _noise(v, rng):
