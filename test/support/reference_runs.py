@@ -149,7 +149,24 @@ def regenerate(names: list[str]) -> list[str]:
     return done
 
 
+def add(bag: str, params: list[str]) -> list[str]:
+    """Add the pair (bags/BAG, params files) to REFERENCE and record it with today's code: a
+    family new to the package joins the golden master (say so in the commit)."""
+    data, meta = load_reference()
+    if any(p["bag"] == bag and p["params"] == params for p in meta["pairs"]):
+        raise SystemExit(f"the pair {bag} {params} is recorded already")
+    key = f"p{1 + max(int(p['key'][1:]) for p in meta['pairs'])}"
+    meta["pairs"].append({"key": key, "bag": bag, "params": params})
+    arrays = {k: data[k] for k in data.files if k != "meta"}
+    np.savez_compressed(REFERENCE, meta=json.dumps(meta), **arrays)
+    return [k for k in regenerate([Path(params[-1]).stem]) if k == key]
+
+
 if __name__ == "__main__":
     # python test/support/reference_runs.py CONFIG_STEM...: record those pairs again (see regenerate)
+    # python test/support/reference_runs.py --add BAG PARAMS...: a new pair (see add)
     import sys
-    print(" ".join(regenerate(sys.argv[1:])))
+    if sys.argv[1:2] == ["--add"]:
+        print(" ".join(add(sys.argv[2], sys.argv[3:])))
+    else:
+        print(" ".join(regenerate(sys.argv[1:])))

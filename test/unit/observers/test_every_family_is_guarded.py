@@ -31,6 +31,7 @@ NUMPY_PATH = {
     "newton_inversion": "test_hosm_newton_numpy_path.py",
     "ekf": "test_ekf.py",
     "track": "test_ekf.py",          # its acquire_track configs, tracker and all
+    "joint_kalman": "test_joint_kalman.py",
 }
 
 
