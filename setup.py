@@ -56,6 +56,7 @@ setup(
             'fto-play = fto_ros.nodes.start:player',
             'fto-report = fto_ros.cli.report:main',
             'fto-design = fto_ros.cli.design:main',
+            'fto-identify = fto_ros.cli.identify:main',
             'fto-sweep = fto_ros.sweep.cli:main',
         ],
     },
