@@ -67,7 +67,7 @@ class Spec:
     ratio: float = 0.5
     outlier: float = 30.0
     encoder_noise: object = None
-    velocity_half: int = 4
+    velocity_half: int = 6
     effort: str = "commanded"
     torque_constant: object = None
     gear_ratio: object = None
@@ -284,7 +284,10 @@ def identify(model: RigidBodyModel, t, q, effort, passive=None, spec: Spec | Non
                           spec.window, spec.stride, spec.max_gap, mask, spec.velocity_half)
     tau = torque_from_effort(spec.effort, effort, reg.gravity(), spec.torque_constant,
                              spec.gear_ratio)
-    reg.tau, reg.y = tau, reg.windows.Z @ tau
+    # a command holds from its sample to the next; a measured torque (a sensor's sample of a
+    # signal that moves with the friction between samples) is interpolated like the positions
+    held = spec.effort != "measured"
+    reg.tau, reg.y = tau, (reg.windows.Z if held else reg.windows.A0) @ tau
     notes = []
     friction = spec.effort != "measured"
     if spec.friction and not friction:

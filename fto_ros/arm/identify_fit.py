@@ -14,11 +14,15 @@ independent-window covariance ``sigma^2 B^-1`` (the median over the unknowns) is
 inflation; the windows over it, the effective number of independent windows. A bias the
 residual does not show (a model form the data does not follow) is not in it.
 
-Refusal: an unknown whose standard error exceeds ``ratio`` times its size (the larger of
-its fitted and its prior magnitude) is left at its prior value, and the fit is repeated
-without it, the worst first, until every remaining one is seen. Windows whose residual is
-more than ``outlier`` robust standard deviations (1.4826 x the median absolute residual) on
-some joint are taken as contacts and left out; the fit is repeated until none is left.
+Contacts first: after a robust fit (least median of squares over random sets of stretches,
+then iteratively reweighted with Huber's weights, so that a contact's windows cannot pull
+the fit that judges them), windows whose residual exceeds
+``outlier`` robust standard deviations (1.4826 x the median absolute residual) on some joint
+are taken as contacts and left out, until none is left; more than ``max_outliers`` of the
+windows so spoilt is no contact-free stretch. Then refusal: an unknown whose standard error
+exceeds ``ratio`` times its size (the larger of its fitted and its prior magnitude) is left at
+its prior value, and the fit is repeated without it, the worst first, until every remaining
+one is seen.
 """
 from __future__ import annotations
 
@@ -64,18 +68,64 @@ def long_run_covariance(G: np.ndarray, lags: int) -> np.ndarray:
     return S
 
 
-def _lstsq(X, r, w, active):
-    """(delta, normalised weighted columns, their norms, weighted residual) on ``active``."""
-    Xa = X[:, :, active] * w[None, :, None]
+def _lstsq(X, r, w, active, rows=None):
+    """(delta, normalised weighted columns, their norms, weighted residual) on ``active``,
+    joints weighted by ``w``, windows by ``rows`` (default 1)."""
+    ww = w[None, :] if rows is None else w[None, :] * rows[:, None]
+    Xa = X[:, :, active] * ww[:, :, None]
     A = Xa.reshape(-1, Xa.shape[2])
     norms = np.linalg.norm(A, axis=0)
     norms[norms == 0] = 1.0
     As = A / norms
-    b = (r * w[None, :]).ravel()
+    b = (r * ww).ravel()
     sol = np.linalg.lstsq(As, b, rcond=None)[0]
     delta = np.zeros(X.shape[2])
     delta[active] = sol / norms
     return delta, As, norms, b - As @ sol
+
+
+def _robust_start(X, r0, floor, active, used, blocks: int = 20, pick: int = 4,
+                  draws: int = 60):
+    """A fit that contacts in up to about half of the windows do not spoil: fits on ``draws``
+    random sets of ``pick`` of ``blocks`` stretches of consecutive windows, the one whose
+    residual has the smallest product over the joints of the median absolute deviations
+    (least median of squares, seeded: the same data give the same fit)."""
+    rng = np.random.default_rng(0)
+    idx = np.flatnonzero(used)
+    parts = np.array_split(idx, min(blocks, max(idx.size // 4, 1)))
+    n, need = r0.shape[1], 3 * int(active.sum())
+    best, best_score = None, np.inf
+    for _ in range(draws):
+        rows = np.concatenate([parts[i] for i in rng.choice(len(parts),
+                                                             min(pick, len(parts)),
+                                                             replace=False)])
+        if rows.size * n < need:
+            continue
+        sigma = np.maximum(_robust_sigma(r0[rows]), floor)
+        delta = _lstsq(X[rows], r0[rows], 1.0 / sigma, active)[0]
+        score = float(np.sum(np.log(np.maximum(_robust_sigma(r0[used] - X[used] @ delta),
+                                               floor))))
+        if score < best_score:
+            best, best_score = delta, score
+    return best
+
+
+def _contacts(X, r0, floor, active, used, rounds: int = 10):
+    """Per window, its largest residual in robust standard deviations after a robust fit
+    (:func:`_robust_start`, then iteratively reweighted least squares with Huber's weights
+    at 3 deviations): a contact's windows cannot pull the fit that judges them."""
+    delta = _robust_start(X, r0, floor, active, used)
+    if delta is None:
+        delta = _lstsq(X[used], r0[used], 1.0 / np.maximum(_robust_sigma(r0[used]), floor),
+                       active)[0]
+    for k in range(rounds + 1):
+        res = r0 - X @ delta
+        sigma = np.maximum(_robust_sigma(res[used]), floor)
+        z = np.max(np.abs(res - np.median(res[used], axis=0)) / sigma, axis=1)
+        if k == rounds:
+            return z
+        rows = np.minimum(1.0, 3.0 / np.maximum(z, 1e-300))
+        delta = _lstsq(X[used], r0[used], 1.0 / sigma, active, rows[used])[0]
 
 
 def solve(X: np.ndarray, r0: np.ndarray, prior: np.ndarray, noise: np.ndarray, lags: int,
@@ -92,7 +142,16 @@ def solve(X: np.ndarray, r0: np.ndarray, prior: np.ndarray, noise: np.ndarray, l
         raise FitRefused("nothing to fit: every unknown is fixed")
     floor = np.maximum(np.asarray(noise, dtype=float), 1e-12)
     refused = []
-    for _ in range(p + 20):               # outlier rounds (a few) and refusals (at most p)
+    for _ in range(10 if outlier > 0 else 0):       # contacts: left out before the fit
+        spoilt = used & (_contacts(X, r0, floor, active, used) > outlier)
+        if not spoilt.any():
+            break
+        used &= ~spoilt
+        if used.mean() < 1 - max_outliers:
+            raise FitRefused(f"no contact-free stretch: {100 * (1 - used.mean()):.0f} % of "
+                             f"the windows show an external torque (residual above "
+                             f"{outlier:g} robust standard deviations)")
+    for _ in range(p + 1):                           # refusals, the worst first
         if used.sum() * n < 2 * active.sum():
             raise FitRefused(f"{used.sum()} windows of {n} joints cannot fit {active.sum()} "
                              f"unknowns: a longer stretch")
@@ -101,16 +160,6 @@ def solve(X: np.ndarray, r0: np.ndarray, prior: np.ndarray, noise: np.ndarray, l
             delta, As, norms, rw = _lstsq(X[used], r0[used], 1.0 / scale, active)
             res = r0 - X @ delta
             scale = np.maximum(np.sqrt(np.mean(res[used] ** 2, axis=0)), floor)
-        z = np.max(np.abs(res - np.median(res[used], axis=0)) /
-                   np.maximum(_robust_sigma(res[used]), floor), axis=1)
-        spoilt = used & (z > outlier) if outlier > 0 else np.zeros(nw, dtype=bool)
-        if spoilt.any():
-            used &= ~spoilt
-            if used.mean() < 1 - max_outliers:
-                raise FitRefused(f"no contact-free stretch: {100 * (1 - used.mean()):.0f} % of "
-                                 f"the windows show an external torque (residual above "
-                                 f"{outlier:g} robust standard deviations)")
-            continue
         dof = max(rw.size - active.sum(), 1)
         Binv = np.linalg.pinv(As.T @ As)
         G = (As * rw[:, None]).reshape(-1, n, As.shape[1]).sum(axis=1)   # per window
@@ -134,4 +183,4 @@ def solve(X: np.ndarray, r0: np.ndarray, prior: np.ndarray, noise: np.ndarray, l
                             used=used, cond=float(s[0] / s[-1]) if s[-1] > 0 else math.inf,
                             inflation=infl, effective_windows=float(used.sum() / infl),
                             scale=scale)
-    raise FitRefused("the fit did not settle (outliers and refusals kept changing)")
+    raise FitRefused("the fit did not settle")

@@ -61,7 +61,7 @@ class WindowRegressor:
     ``max_gap``; ``mask``: samples usable (False: none of their windows is used)."""
 
     def __init__(self, model: RigidBodyModel, t, q, tau, passive=None, T: float = 0.1,
-                 stride: int = 10, max_gap: float = 0.01, mask=None, velocity_half: int = 4):
+                 stride: int = 10, max_gap: float = 0.01, mask=None, velocity_half: int = 6):
         self.model = model
         self.t = np.ascontiguousarray(t, dtype=float)
         self.q = np.ascontiguousarray(q, dtype=float)

@@ -59,21 +59,25 @@ def kernel(u, T: float, order: int = 0):
     return val / T ** (order + 1)
 
 
-def centred_velocity(t: np.ndarray, q: np.ndarray, m: int = 4) -> np.ndarray:
-    """Per sample, the least-squares slope of the positions of the samples k - m .. k + m
-    (fewer at the ends) over their actual stamps."""
+def centred_velocity(t: np.ndarray, q: np.ndarray, m: int = 6, degree: int = 3) -> np.ndarray:
+    """Per sample, the slope at its stamp of the least-squares polynomial of ``degree``
+    through the positions of the samples k - m .. k + m (the 2 m + 1 nearest at the ends)
+    over their actual stamps. Degree 3: exact for a cubic, so a reversal where the Coulomb
+    friction turns the acceleration round quickly (a large third derivative) biases it
+    little."""
     t = np.asarray(t, dtype=float)
     q = np.asarray(q, dtype=float)
     N = t.size
-    if N < 2:
-        raise WindowError("a velocity needs at least two samples")
-    v = np.empty_like(q)
-    for k in range(N):
-        lo, hi = max(0, k - m), min(N, k + m + 1)
-        tt = t[lo:hi] - t[k]
-        dt = tt - tt.mean()
-        v[k] = dt @ (q[lo:hi] - q[lo:hi].mean(axis=0)) / (dt @ dt)
-    return v
+    if N < degree + 2:
+        raise WindowError(f"a velocity needs at least {degree + 2} samples")
+    width = min(2 * m + 1, N)
+    lo = np.clip(np.arange(N) - m, 0, N - width)
+    idx = lo[:, None] + np.arange(width)[None, :]
+    dt = t[idx] - t[:, None]
+    scale = np.maximum(np.abs(dt).max(axis=1, keepdims=True), 1e-300)
+    V = (dt / scale)[:, :, None] ** np.arange(degree + 1)[None, None, :]
+    slope = np.linalg.pinv(V)[:, 1, :] / scale          # d/dt of the fit at the sample
+    return np.einsum("kj,kjn->kn", slope, q[idx])
 
 
 @jit
