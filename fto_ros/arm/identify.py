@@ -91,6 +91,7 @@ class Identified:
     windows: int
     window_times: np.ndarray | None = None     # the windows' ends (the stamps' time)
     notes: list = field(default_factory=list)
+    payload_fitted: tuple | None = None        # (mass, com, inertia about the com)
 
     @property
     def refused(self) -> list:
@@ -99,11 +100,9 @@ class Identified:
 
     def payload(self):
         """(frame, mass, com, inertia 3 x 3 about the com) fitted, or None."""
-        idx = [i for i, u in enumerate(self.unknowns) if u.kind == "payload"]
-        if not idx:
+        if self.payload_fitted is None:
             return None
-        theta = np.array([self.value[i] for i in idx])
-        return (self.spec.payload, *_payload_from(theta))
+        return (self.spec.payload, *self.payload_fitted)
 
     def parameters(self) -> dict:
         """The ROS parameters to write (flat names, ARM_DESIGN's), from the fitted values."""
@@ -308,37 +307,33 @@ def identify(model: RigidBodyModel, t, q, effort, passive=None, spec: Spec | Non
     fit = solve(X, r0, prior, noise, lags, spec.ratio, spec.outlier)
     value = prior + fit.delta
     pay = [i for i, u in enumerate(unknowns) if u.kind == "payload"]
-    if pay:
-        fit, value = _physical_payload(X, r0, prior, noise, lags, spec, fit, value, pay, notes)
+    payload = _physical_payload(fit, value, pay, spec.payload, notes) if pay else None
     used = fit.used
     return Identified(model=model, spec=spec, unknowns=unknowns, value=value, se=fit.se, fit=fit,
                       prior_rms=np.sqrt(np.mean(r0[used] ** 2, axis=0)),
                       residual_rms=np.sqrt(np.mean(fit.residual[used] ** 2, axis=0)),
                       noise_rms=noise, encoder_noise=np.asarray(sigma_q, dtype=float),
-                      windows=int(used.sum()), notes=notes,
+                      windows=int(used.sum()), notes=notes, payload_fitted=payload,
                       window_times=np.asarray(t, dtype=float)[reg.windows.ends])
 
 
-def _physical_payload(X, r0, prior, noise, lags, spec, fit, value, pay, notes):
-    """A payload with a negative mass is refused; one whose inertia about its centre of mass
-    is no rigid body's is refitted with the inertia left at its prior."""
-    mass = value[pay[0]]
-    if fit.active[pay[0]] and mass <= 0:
-        raise FitRefused(f"payload at {spec.payload}: the fitted mass is {mass:.4g} kg "
-                         f"(standard error {fit.se[pay[0]]:.2g}): no payload the data can see")
-    _, _, I = _payload_from(value[pay])
-    inertia = pay[4:]
-    if np.any(I != 0) and any(fit.active[i] for i in inertia):
+def _physical_payload(fit, value, pay, frame, notes):
+    """(mass, com, inertia about the com) of the fitted payload: a mass the data put at or
+    below zero is refused; an inertia about the centre of mass that is no rigid body's (a
+    small load is nearly a point mass, and its fitted moments scatter around zero) is
+    written as a point mass's (zero), said in a note."""
+    mass, com, inertia = _payload_from(value[pay])
+    if not mass > 0:
+        raise FitRefused(f"payload at {frame}: the fitted mass is {mass:.4g} kg (standard "
+                         f"error {fit.se[pay[0]]:.2g}): no payload the data can see")
+    if np.any(inertia != 0):
         try:
-            check_inertia(I, _raise)
-        except ValueError as err:
-            notes.append(f"payload inertia refused ({err}): left at its prior")
-            fixed = ~fit.active
-            fixed[inertia] = True
-            refit = solve(X, r0, prior, noise, lags, spec.ratio, spec.outlier, fixed=fixed)
-            refit.refused = fit.refused + refit.refused
-            fit, value = refit, prior + refit.delta
-    return fit, value
+            check_inertia(inertia, _raise)
+        except FitRefused as err:
+            notes.append(f"payload inertia about its centre of mass is no rigid body's "
+                         f"({err}): written as a point mass")
+            inertia = np.zeros((3, 3))
+    return mass, com, inertia
 
 
 def _raise(message: str):

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from arm_urdfs import chain
+from arm_urdfs import chain, inertial, joint, link
 from fto_ros.arm import load_model
 from fto_ros.models.arm import ArmSettings, Contact, simulate_arm
 
@@ -24,6 +24,18 @@ WIDTH = 0.1
 #: a centre of mass moved and a moment changed (link axes, about the link's origin)
 DELTA = {"l2": [0.0, 0.004, -0.003, 0.006, 0.002, 0.0, 0.001, 0.0, 0.0, 0.0],
          "l3": [0.0, -0.002, 0.005, 0.003, 0.0, 0.0015, 0.0, 0.0, 0.0, 0.0]}
+
+
+def urdf_with_armature() -> str:
+    """TEXT with the rotor inertias written in the URDF (``<dynamics armature>``), for
+    ``fto-simulate --urdf``, which takes them from the file."""
+    parts = ['<robot name="chain">', link("l0")]
+    for i in range(1, 4):
+        parts.append(joint(f"j{i}", "revolute", f"l{i - 1}", f"l{i}", (0, 0, 0.1), (0.1, 0, 0),
+                           (0, i % 2, (i + 1) % 2),
+                           f'<dynamics armature="{ARMATURE[i - 1]!r}"/>'))
+        parts.append(link(f"l{i}", inertial(1.0, (0, 0, 0.05))))
+    return "".join(parts + ["</robot>"])
 
 
 @dataclass
