@@ -286,17 +286,27 @@ class RigidBodyModel:
         used from the next call on; nothing else is rebuilt."""
         self.tree.set_payload(frame, mass, com, inertia)
 
+    def correct_inertia(self, scale=None, delta=None) -> None:
+        """Identified inertial corrections (``plant.inertia_scale``: {link: factor},
+        ``plant.inertia_delta``: {link: 10 values}; :meth:`.tree.Tree.correct_inertia`)."""
+        self.tree.correct_inertia(scale, delta)
+
 
 def load_model(joints: Sequence[str] | None, *, urdf: str | os.PathLike | None = None,
                robot_description: str | None = None,
                locked_joints: Mapping[str, float] | None = None,
                viscous_friction=None, coulomb_friction=None,
-               friction_width: float = DEFAULT_FRICTION_WIDTH, armature=None) -> RigidBodyModel:
+               friction_width: float = DEFAULT_FRICTION_WIDTH, armature=None,
+               inertia_scale=None, inertia_delta=None) -> RigidBodyModel:
     """A :class:`RigidBodyModel` from a URDF file (``plant.urdf``) or string
     (``robot_description``), the joints to use (``plant.joints``; None or empty: the arm's
     chain) and the default positions of passive joints (``plant.locked_joints``); friction
-    and armature per listed joint (None: the URDF's)."""
+    and armature per listed joint (None: the URDF's); identified inertial corrections
+    (:meth:`RigidBodyModel.correct_inertia`)."""
     text, param = read_source(urdf, robot_description)
     robot = parse(text, param)
-    return RigidBodyModel(robot, joints, locked_joints or {}, viscous_friction,
-                          coulomb_friction, friction_width, armature, source_param=param)
+    model = RigidBodyModel(robot, joints, locked_joints or {}, viscous_friction,
+                           coulomb_friction, friction_width, armature, source_param=param)
+    if inertia_scale or inertia_delta:
+        model.correct_inertia(inertia_scale, inertia_delta)
+    return model

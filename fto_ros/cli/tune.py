@@ -84,10 +84,11 @@ def _fail(message: Any, code: int) -> int:
 def _main(args: argparse.Namespace) -> int:
     from ..bag import BagError
     from ..core.errors import ConfigError
-    from ..core.output_dir import OutputError, OutputExists
+    from ..core.output_dir import OutputError, OutputExists, check_output_file
     from ..replay.topics import ReplayError
     try:
-        out = check_output_file(args.out, [args.bag, *args.params], args.overwrite)
+        out = check_output_file(args.out, MARKER, overwrite=args.overwrite,
+                                inputs=[args.bag, *args.params])
         result = tune(args)
         write_tuned(out, result)
     except (ConfigError, OutputError) as err:
@@ -97,41 +98,6 @@ def _main(args: argparse.Namespace) -> int:
     print(result["table"])
     print(f"{PROG}: wrote {out}")
     return 0
-
-
-# -- the output file ------------------------------------------------------------------------
-def check_output_file(path: str, inputs: Sequence[str], overwrite: bool) -> Path:
-    """``path`` if fto-tune may write it (the module doc); OutputError (exit 2) for a refused
-    path, OutputExists (exit 1) for an existing one without ``overwrite``."""
-    from ..core.output_dir import OutputError, OutputExists
-    if not str(path).strip() or "\0" in str(path):
-        raise OutputError(f"bad output path {path!r}")
-    real = os.path.realpath(path)
-    for item in inputs:
-        item_real = os.path.realpath(item)
-        if real == item_real or os.path.commonpath([real, item_real]) == item_real:
-            raise OutputError(f"refusing to write {path}: it is the input {item} or inside it")
-    parent = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(parent):
-        raise OutputError(f"{path}: parent directory {parent} does not exist")
-    try:
-        st = os.lstat(path)
-    except FileNotFoundError:
-        return Path(path)
-    if not overwrite:
-        raise OutputExists(f"{path}: exists already (remove it or pass --overwrite)")
-    if not stat.S_ISREG(st.st_mode):
-        raise OutputError(f"refusing to replace {path}: not a regular file (a symlink, a "
-                          "folder or a special file)")
-    try:
-        with open(path, encoding="utf-8", errors="replace") as fh:
-            first = fh.readline(len(MARKER) + 2).rstrip("\n")
-    except OSError as err:
-        raise OutputError(f"refusing to replace {path}: cannot read it ({err.strerror})") from None
-    if first != MARKER:
-        raise OutputError(f"refusing to replace {path}: fto-tune did not write it (its first "
-                          "line is not fto-tune's)")
-    return Path(path)
 
 
 def _plain(v: Any) -> Any:

@@ -276,3 +276,44 @@ def abandon(path, kind: str, why: str, *, keep: bool = False) -> str:
     except OSError:
         pass                        # the name says it too
     return f"the incomplete output was renamed {target}"
+
+
+def check_output_file(path, marker: str, *, overwrite: bool = False,
+                      inputs: Iterable = ()) -> Path:
+    """Raise unless ``path`` may be written as a single-file output (a params file a command
+    writes) whose first line is ``marker``; touch nothing.
+
+    Refused (:class:`OutputError`): an empty path, an input or a path inside one (a bag
+    folder counts whole), a parent folder that does not exist, an existing path that is not
+    a regular file (a symlink, a folder, a device) or whose first line is not ``marker``
+    (the command did not write it). An existing file without ``overwrite``:
+    :class:`OutputExists`."""
+    text = _text(path)
+    real = os.path.realpath(text)
+    for item in _protected(inputs):
+        if real == item or _inside(real, item):
+            raise OutputError(f"refusing to write {text}: it is the input {item} or inside it")
+    parent = os.path.dirname(os.path.abspath(text))
+    if not os.path.isdir(parent):
+        raise OutputError(f"{text}: the folder {parent} does not exist")
+    try:
+        st = os.lstat(text)
+    except FileNotFoundError:
+        return Path(text)
+    except OSError as err:
+        raise OutputError(f"cannot use {text} as the output: {err.strerror}") from None
+    if not overwrite:
+        raise OutputExists(f"{text}: output exists already (remove it or pass --overwrite)")
+    if not stat.S_ISREG(st.st_mode):
+        raise OutputError(f"refusing to replace {text}: not a regular file (a symlink, a "
+                          f"folder or a special file)")
+    try:
+        with open(text, encoding="utf-8", errors="replace") as fh:
+            first = fh.readline(len(marker) + 2).rstrip("\n")
+    except OSError as err:
+        raise OutputError(f"refusing to replace {text}: cannot read it ({err.strerror})") \
+            from None
+    if first != marker:
+        raise OutputError(f"refusing to replace {text}: the command did not write it (its "
+                          f"first line is not {marker!r})")
+    return Path(text)
