@@ -86,14 +86,46 @@ class Tree:
         self.frames = dict(place)
         for j in robot.joints:               # a joint's frame is its child link's
             self.frames.setdefault(j.name, place[j.child])
-        self.base = np.zeros((len(moving), 10))
+        #: each link's inertia parameters about its body's origin (links on the root: none)
+        self.link_params: dict[str, tuple[int, np.ndarray]] = {}
         for link, inertial in robot.links.items():
             b, R, p = place[link]
             if inertial is not None and b >= 0:
-                self.base[b] += inertia_params(inertial.mass, inertial.com, inertial.inertia, R, p)
-        rows[:, INERTIA:INERTIA + 10] = self.base
-        self.rows = rows
+                self.link_params[link] = (b, inertia_params(inertial.mass, inertial.com,
+                                                            inertial.inertia, R, p))
+        self.scales: dict[str, float] = {}
         self.payloads: dict[str, np.ndarray] = {}
+        self.rows = rows
+        self._apply()
+
+    def _apply(self) -> None:
+        """The inertia columns: the links (scaled), then the payloads."""
+        self.base = np.zeros((self.rows.shape[0], 10))
+        for link, (b, params) in self.link_params.items():
+            self.base[b] += self.scales.get(link, 1.0) * params
+        total = self.base.copy()
+        for name, params in self.payloads.items():
+            if self.frames[name][0] >= 0:
+                total[self.frames[name][0]] += params
+        self.rows[:, INERTIA:INERTIA + 10] = total
+
+    def scale_links(self, scales, param: str = "plant.inertia_scale.links") -> None:
+        """Scale each named link's mass, first moment and inertia by its factor (what an
+        identification fits: ``plant.inertia_scale.links`` / ``.factors``)."""
+        new = {}
+        for link, factor in dict(scales).items():
+            if link not in self.robot.links:
+                raise ConfigError(param, f"the URDF has no link {short(link)}")
+            if link not in self.link_params:
+                raise ConfigError(param, f"link {short(link)} has no inertia to scale (no "
+                                         f"<inertial>, or fixed to the root)")
+            f = float(factor)
+            if not (math.isfinite(f) and f > 0):
+                raise ConfigError("plant.inertia_scale.factors", f"{link}: a factor must be a "
+                                  f"finite number > 0, got {short(factor)}")
+            new[link] = f
+        self.scales = new
+        self._apply()
 
     def row_of(self, joint: str) -> int:
         return self.names.index(joint)
@@ -138,8 +170,4 @@ class Tree:
         self.payloads.pop(frame, None)
         if m > 0:
             self.payloads[frame] = inertia_params(m, c, I, R, p)
-        total = self.base.copy()
-        for name, params in self.payloads.items():
-            if self.frames[name][0] >= 0:
-                total[self.frames[name][0]] += params
-        self.rows[:, INERTIA:INERTIA + 10] = total
+        self._apply()

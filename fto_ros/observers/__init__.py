@@ -15,6 +15,7 @@ from .hosm import HosmObserver
 from .newton_inversion import NewtonInversionObserver
 from .ekf import ExtendedKalmanFilter
 from .track import TrackObserver
+from .external_torque import ExternalTorqueObserver
 
 REGISTRY: dict[str, type[Observer]] = {
     cls.TYPE: cls for cls in (NewtonInversionObserver, SingleDelayObserver, PrescribedTimeObserver, LuenbergerObserver, HosmObserver)
@@ -22,6 +23,7 @@ REGISTRY: dict[str, type[Observer]] = {
 REGISTRY.update({cls.TYPE: cls for cls in (GlobalNormObserver, HighGainObserver)})
 REGISTRY[ExtendedKalmanFilter.TYPE] = ExtendedKalmanFilter
 REGISTRY[TrackObserver.TYPE] = TrackObserver
+REGISTRY[ExternalTorqueObserver.TYPE] = ExternalTorqueObserver
 
 
 def observer_class(type_name: str) -> type[Observer]:
