@@ -16,6 +16,7 @@ from .newton_inversion import NewtonInversionObserver
 from .ekf import ExtendedKalmanFilter
 from .track import TrackObserver
 from .external_torque import ExternalTorqueObserver
+from .momentum_observer import MomentumObserverFamily
 
 REGISTRY: dict[str, type[Observer]] = {
     cls.TYPE: cls for cls in (NewtonInversionObserver, SingleDelayObserver, PrescribedTimeObserver, LuenbergerObserver, HosmObserver)
@@ -24,6 +25,7 @@ REGISTRY.update({cls.TYPE: cls for cls in (GlobalNormObserver, HighGainObserver)
 REGISTRY[ExtendedKalmanFilter.TYPE] = ExtendedKalmanFilter
 REGISTRY[TrackObserver.TYPE] = TrackObserver
 REGISTRY[ExternalTorqueObserver.TYPE] = ExternalTorqueObserver
+REGISTRY[MomentumObserverFamily.TYPE] = MomentumObserverFamily
 
 
 def observer_class(type_name: str) -> type[Observer]:
