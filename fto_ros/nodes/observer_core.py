@@ -349,7 +349,8 @@ class ObserverCore(JointsCore):
         # not at all (/clock comes from the player of the data): the runner's rules, as replayed
         clock = self.get_clock()
         sample = joint_state_sample(msg, self._runner.settings,
-                                    None if clock.ros_time_is_active else clock.now().nanoseconds * 1e-9)
+                                    None if clock.ros_time_is_active else clock.now().nanoseconds * 1e-9,
+                                    self._runner.intake)
         if sample.__class__ is str:
             self._reject(sample)
             return

@@ -49,6 +49,11 @@ class ArmObserver(KernelObserver):
         self.n_states, self.n_outputs, self.n_inputs = 2 * n, n, n + k
         self.state_names = self.joints + [f"{j}_dot" for j in self.joints]
         self.unknown_input_names = list(self.joints)
+        #: the extras on ~/convergence (arm/detect.py's): per joint contact and collision
+        #: (0/1) and the lower and upper levels (Nm; 0 while unknown)
+        self.CONVERGENCE_EXTRA = ("tau_ext_valid", "calibrated", "model_mismatch") + tuple(
+            f"{what}.{j}" for what in ("contact", "collision", "lower_Nm", "upper_Nm")
+            for j in self.joints)
         self.meaning = a["effort.meaning"]
         self.torque_factor = AP.torque_factors(a, n)
         measured = self.meaning == "measured"          # friction acts motor-side

@@ -42,6 +42,7 @@ from . import loop as L
 from . import joints as JX
 from . import settings as S
 from ..core import jit as J_
+from .arm_intake import arm_intake
 from .build import changed_names, design_guard
 from .health import FAILURES, HealthWindow
 
@@ -115,7 +116,8 @@ class Runner:
         with design_guard(flat_params, changed):
             joints = flat_params.get("joints") or []
             flats = [dict(flat_params)]
-            if isinstance(joints, (list, tuple)) and joints and all(isinstance(j, str) for j in joints):
+            if isinstance(joints, (list, tuple)) and joints and not S.is_arm(flat_params) \
+                    and all(isinstance(j, str) for j in joints):
                 flats = JX.per_joint(flat_params, joints)
             parts = [S.split(f) for f in flats]
         obs_class = parts[0][1]
@@ -138,11 +140,17 @@ class Runner:
         flats, parts = self._split
         del self._split
         self.settings, self.observer_class, self.observer_config = parts[0]
-        self.joints = list(self.settings["joints"])
+        arm = getattr(self.observer_class, "ARM", False)
+        #: an arm family's JointState intake (runner/arm_intake.py), else None
+        self.intake = None
+        self.joints = [] if arm else list(self.settings["joints"])
         with design_guard(flat_params, changed):
             self.observers: list[KernelObserver] = [cls(cfg) for _, cls, cfg in parts]
             self.observer = obs = self.observers[0]
-            S.check_settings(self.settings, obs.n_states, obs.n_outputs, obs.n_inputs)
+            if arm:
+                self.intake = arm_intake(obs, self.settings)
+            else:
+                S.check_settings(self.settings, obs.n_states, obs.n_outputs, obs.n_inputs)
             self._roles = self._joint_roles(flats) if self.joints else None
         self._flat = dict(flat_params)
         self._update_us: deque[float] = deque(maxlen=2000)
@@ -322,7 +330,7 @@ class Runner:
         new._configure(self)                     # the counters, inputs and held samples go on
         for k in ("settings", "observer_config", "observer", "observers", "_roles", "_arrays",
                   "_prog", "_r", "_nconv", "_cfg", "_rl", "_gate_args", "_rs", "_rc", "_rh",
-                  "_js", "_one", "_joint_ev", "_flat"):
+                  "_js", "_one", "_joint_ev", "_flat", "intake"):
             setattr(self, k, getattr(new, k))
         for h in self._health:
             h.window = self.settings["diagnostics.window"]

@@ -38,7 +38,9 @@ SETTINGS: tuple[Param, ...] = (
           "of each come from its entry in the JointState (joint_states.output_fields, "
           "input_fields), a constant may differ per joint ('name=[v1, ..., vJ]' in "
           "plant.constants). Empty: one observer over the plant (y and u as the other "
-          "joint_states.* settings say)"),
+          "joint_states.* settings say). For the arm's external-torque families "
+          "(external_torque, momentum_observer): the joints ONE observer estimates, in the "
+          "order of every output (empty: the arm's chain from its URDF)"),
     Param("joint_states.output_fields", "string_array", ["position"], "per-joint mode "
           "(joints): the JointState fields that give each joint's y, in the plant's output "
           "order", choices=FIELDS),
@@ -133,11 +135,35 @@ SETTINGS: tuple[Param, ...] = (
 ROS_BUILTIN = ("use_sim_time", "start_type_description_service")
 
 
+def is_arm(flat: Mapping[str, Any]) -> bool:
+    """Whether ``flat`` chooses a family that estimates an arm's external torques (one
+    observer over ``joints``, its plant the URDF: observers/arm_base.py)."""
+    cls = REGISTRY.get(flat.get("observer.type")) if isinstance(flat.get("observer.type"), str) \
+        else None
+    return bool(getattr(cls, "ARM", False))
+
+
+def _arm_observer(flat: Mapping[str, Any], cls) -> tuple[type, dict[str, Any], dict[str, Any]]:
+    """An arm family's (class, config, flat): its section, the arm parameters (``cfg['arm']``,
+    observers/arm_plant.py) and the joint list (``joints``)."""
+    section = cls.TYPE + "."
+    values = {k[len(section):]: v for k, v in flat.items() if k.startswith(section)}
+    cfg = resolve(cls.PARAMS, values, prefix=section)
+    cfg["arm"] = resolve(cls.ARM_PARAMS, {k: v for k, v in flat.items() if k in
+                                          {p.name for p in cls.ARM_PARAMS}})
+    joints = flat.get("joints") or []
+    cfg["joints"] = resolve([p for p in SETTINGS if p.name == "joints"], {"joints": joints})[
+        "joints"]
+    return cls, cfg, dict(flat)
+
+
 def _observer(flat: Mapping[str, Any], type_name: Any) -> tuple[type, dict[str, Any], dict[str, Any]]:
     """(class, typed config, flat parameters after the plant expansion) of observer
     ``type_name`` as configured by ``flat`` (its section, the plant block)."""
     sub = dict(flat)
     sub["observer.type"] = type_name
+    if is_arm(sub):
+        return _arm_observer(sub, observer_class(type_name))
     if type_name == TrackObserver.TYPE:            # a composition: its children expand
         sub = {k: v for k, v in sub.items() if not k.startswith("plant.")}
         adapt = None
@@ -174,8 +200,9 @@ def split(flat: Mapping[str, Any]) -> tuple[dict[str, Any], type, dict[str, Any]
                           + ", ".join(sorted(REGISTRY)) + ")")
     cls, obs_cfg, flat = _observer(flat, type_name)
     section = cls.TYPE + "."
+    arm = {p.name for p in getattr(cls, "ARM_PARAMS", ())}
     for k in flat:
-        if k in known or k.startswith(section) or k in ROS_BUILTIN:
+        if k in known or k in arm or k.startswith(section) or k in ROS_BUILTIN:
             continue
         if k.split(".", 1)[0] in REGISTRY:
             continue
