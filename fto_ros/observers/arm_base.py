@@ -129,6 +129,11 @@ class ArmObserver(KernelObserver):
                                               for j, f in bad) + \
             " (identify the model: fto-identify, docs/external_torque.md)"
 
+    def warnings(self) -> list[str]:
+        """What /diagnostics reports as WARN: a model mismatch."""
+        bad = self.mismatch_message()
+        return [bad] if bad else []
+
     # -- the payload -------------------------------------------------------------------------
     def set_payload(self, values: Mapping[str, Any]) -> None:
         """New payload.* values (typed) taken at once: the tree's rows in the kernel's

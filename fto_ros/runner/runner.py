@@ -703,6 +703,9 @@ class Runner:
         if recent.get("rebase"):
             level = WARN
             problems.append("the outlier gate accepted a persisting change of the signal")
+        for warning in getattr(obs, "warnings", lambda: ())():   # the observer's own
+            level = max(level, WARN)
+            problems.append(warning)
         if state == "diverging":
             level = WARN
             problems.append("output residual above convergence.residual_threshold after the guaranteed time")

@@ -195,14 +195,17 @@ def test_structures_that_are_no_arm(text, words):
 def test_the_joint_cap_and_the_windows_memory():
     """F16: more joints than configure in about 2 s and 200 MB are refused before anything
     is built; so is a window estimator whose ring would outgrow its budget."""
+    from arm_families import observer
     from arm_urdfs import chain
-    from fto_ros.arm.external_torque import MAX_WINDOW_BYTES, DesignRefused, WindowEstimator
     from fto_ros.arm.urdf import MAX_JOINTS
+    from fto_ros.observers.external_torque import kernel
+    from fto_ros.observers.external_torque.adapter import MAX_WINDOW_BYTES
     assert load_model(None, robot_description=chain(MAX_JOINTS)).n == MAX_JOINTS
     refused(chain(MAX_JOINTS + 1), f"{MAX_JOINTS + 1} joints: more than the {MAX_JOINTS}")
-    m = load_model(None, robot_description=chain(60))
-    WindowEstimator(m, window=0.06)
-    W = MAX_WINDOW_BYTES // (8 * (5 * 60 + 2 * 60 ** 2)) - 1      # the longest that fits
-    WindowEstimator(m, window=(W - 1) * 1e-3)
-    with pytest.raises(DesignRefused, match="MiB, more than the 64 MiB"):
-        WindowEstimator(m, window=(W + 1) * 1e-3)
+    text = chain(60)
+    slot = kernel.slot_offsets(60, 0)[-1]
+    W = MAX_WINDOW_BYTES // (8 * slot) - 1                   # the longest that fits
+    assert observer("external_torque", text=text, external_torque__window=(W - 1) * 1e-3)
+    with pytest.raises(ConfigError, match="MiB, more than the 64 MiB") as err:
+        observer("external_torque", text=text, external_torque__window=(W + 1) * 1e-3)
+    assert err.value.parameter == "external_torque.window"
