@@ -18,31 +18,13 @@ import yaml
 
 from ..core.errors import ConfigError
 from ..core.params import Param
-from .identify import EFFORT_MEANINGS
-from .model import RigidBodyModel, load_model
+from .model import RigidBodyModel
+from .params import PLANT, build_model
 
-READS: tuple[Param, ...] = (
-    Param("plant.urdf", "string", "", "the arm's URDF file (or robot_description)"),
-    Param("robot_description", "string", "", "the arm's URDF text (or plant.urdf)"),
+#: the arm's plant and effort parameters as the estimators declare them (arm/params.py),
+#: the joint list and the stream's topic
+READS: tuple[Param, ...] = PLANT + (
     Param("joints", "string_array", [], "the estimator's joints (empty: the arm's chain)"),
-    Param("plant.locked_joints", "string_array", [], "passive joints with a start position"),
-    Param("plant.locked_positions", "double_array", [], "their positions"),
-    Param("plant.viscous_friction", "double_array", [], "b per joint", min=0.0),
-    Param("plant.coulomb_friction", "double_array", [], "f_c per joint", min=0.0),
-    Param("plant.friction_width", "double", 0.02, "w of tanh(v / w), rad/s", gt=0.0),
-    Param("plant.armature", "double_array", [], "rotor inertia per joint", min=0.0),
-    Param("plant.inertia_scale.links", "string_array", [], "links scaled"),
-    Param("plant.inertia_scale.factors", "double_array", [], "their factors", gt=0.0),
-    Param("plant.inertia_delta.links", "string_array", [], "links corrected"),
-    Param("plant.inertia_delta.values", "double_array", [], "10 per link"),
-    Param("payload.frame", "string", "", "the payload's frame ('' none)"),
-    Param("payload.mass", "double", 0.0, "kg", min=0.0),
-    Param("payload.com", "double_array", [0.0, 0.0, 0.0], "m, frame axes"),
-    Param("payload.inertia", "double_array", [0.0] * 6, "ixx ixy ixz iyy iyz izz about the com"),
-    Param("effort.meaning", "string", "commanded", "what JointState.effort carries",
-          choices=EFFORT_MEANINGS),
-    Param("effort.torque_constant", "double_array", [], "Nm/A per joint (current)", gt=0.0),
-    Param("effort.gear_ratio", "double_array", [], "per joint (current)", gt=0.0),
     Param("topics.joint_states", "string", "joint_states", "the JointState stream"),
 )
 
@@ -58,47 +40,9 @@ def read(flat: Mapping[str, Any]) -> dict[str, Any]:
             for p in READS}
 
 
-def _pairs(links, values, per: int, links_name: str, values_name: str) -> dict:
-    if len(values) != per * len(links):
-        raise ConfigError(values_name, f"{per} value(s) per entry of {links_name} "
-                                       f"({len(links)}), got {len(values)}")
-    return {name: (values[i] if per == 1 else values[per * i:per * i + per])
-            for i, name in enumerate(links)}
-
-
 def prior_model(s: Mapping[str, Any]) -> RigidBodyModel:
     """The model the params ``s`` (:func:`read`) describe: the prior of an identification."""
-    urdf, text = s["plant.urdf"], s["robot_description"]
-    if bool(urdf) == bool(text):
-        raise ConfigError("plant.urdf", "give the URDF file (plant.urdf) or the "
-                                        "robot_description string, exactly one of them")
-    locked = _pairs(s["plant.locked_joints"], s["plant.locked_positions"], 1,
-                    "plant.locked_joints", "plant.locked_positions")
-    model = load_model(list(s["joints"]) or None, urdf=urdf or None,
-                       robot_description=text or None, locked_joints=locked,
-                       viscous_friction=s["plant.viscous_friction"] or None,
-                       coulomb_friction=s["plant.coulomb_friction"] or None,
-                       friction_width=s["plant.friction_width"],
-                       armature=s["plant.armature"] or None,
-                       inertia_scale=_pairs(s["plant.inertia_scale.links"],
-                                            s["plant.inertia_scale.factors"], 1,
-                                            "plant.inertia_scale.links",
-                                            "plant.inertia_scale.factors"),
-                       inertia_delta=_pairs(s["plant.inertia_delta.links"],
-                                            s["plant.inertia_delta.values"], 10,
-                                            "plant.inertia_delta.links",
-                                            "plant.inertia_delta.values"))
-    frame = s["payload.frame"]
-    if frame and s["payload.mass"] > 0:
-        com, inertia = s["payload.com"], s["payload.inertia"]
-        if len(com) != 3 or len(inertia) != 6:
-            raise ConfigError("payload.com", f"payload.com needs 3 values and payload.inertia 6 "
-                                             f"(ixx ixy ixz iyy iyz izz), got {len(com)}, "
-                                             f"{len(inertia)}")
-        xx, xy, xz, yy, yz, zz = inertia
-        model.set_payload(frame, s["payload.mass"], com,
-                          [[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
-    return model
+    return build_model(s, s["joints"])
 
 
 def _plain(value):

@@ -240,7 +240,7 @@ def _joint_roles(text: str, args):
         driven = [j.strip() for j in args.joints.split(",")]
     for j in driven:
         if j in joints and joints[j].mimic:
-            raise ConfigError("plant.joints", f"{j} is a mimic joint of {joints[j].mimic[0]}: "
+            raise ConfigError("joints", f"{j} is a mimic joint of {joints[j].mimic[0]}: "
                                               f"list its parent")
     arm = set(trunk(joints))
     fingers = {j.name: (j.lower, j.upper) for j in movable if j.name not in driven
@@ -255,7 +255,7 @@ def _joint_roles(text: str, args):
         elif parent in fingers:
             mimic[j.name] = j.mimic
         else:
-            raise ConfigError("plant.joints", f"mimic joint {j.name} follows {parent}, which "
+            raise ConfigError("joints", f"mimic joint {j.name} follows {parent}, which "
                                               f"is driven: the simulator moves mimic joints of "
                                               f"gripper fingers only")
     return driven, fingers, mimic, locks, joints

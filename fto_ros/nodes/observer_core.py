@@ -36,8 +36,9 @@ from std_srvs.srv import SetBool, Trigger
 from ..core.errors import ConfigError
 from ..runner.messages import joint_state_sample
 from ..runner.runner import HELD, Runner
+from .arm_core import ArmCore
 from .joints_core import JointsCore
-from .outputs import REFRESH_S, Outputs
+from .outputs import REFRESH_S, Outputs, diagnostic_array
 from .parameters import NodeParameters, check_declared
 from .receipt_clock import ReceiptClock
 from .observer_services import ObserverServices
@@ -54,7 +55,7 @@ SERVICE_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=Reliability
                          durability=DurabilityPolicy.VOLATILE)
 
 
-class ObserverCore(JointsCore, ObserverServices):
+class ObserverCore(ArmCore, JointsCore, ObserverServices):
     """The observer behaviour of a node (``self`` is an rclpy Node or LifecycleNode)."""
 
     _runner: Runner | None = None
@@ -62,11 +63,17 @@ class ObserverCore(JointsCore, ObserverServices):
 
     # ------------------------------------------------------------- life cycle
     def configure(self) -> None:
-        """Declare and validate the parameters and build the observer (no I/O yet).
+        """Declare and validate the parameters and build the observer (no I/O yet; an arm
+        family without its URDF waits for the robot_description topic: arm_core.py).
         ConfigError (naming the parameter) for an unusable configuration."""
         self._params = NodeParameters(self)
         self._params.declare()
-        self._runner = Runner(self._params.with_unknown_overrides())
+        flat = self._params.with_unknown_overrides()
+        if not self._arm_waits(flat):
+            self._configured(Runner(flat))
+
+    def _configured(self, runner: Runner) -> None:
+        self._runner = runner
         self._received = {"measured_output": 0, "input": 0, "joint_states": 0}
         self._published = 0
         self._dropped_disabled = 0
@@ -91,7 +98,13 @@ class ObserverCore(JointsCore, ObserverServices):
         self.get_logger().info("design: " + "; ".join(f"{k} = {v}" for k, v in obs.diagnostics().items()))
 
     def open(self) -> None:
-        """Outputs, subscriptions, services, timers: the observer runs."""
+        """Outputs, subscriptions, services, timers: the observer runs (an arm family
+        waiting for its URDF: the robot_description subscription until it comes)."""
+        self._entities = self._open_description() if self._waiting is not None else []
+        if self._runner is not None:
+            self._entities += self._open_observer()
+
+    def _open_observer(self) -> list:
         runner, s = self._runner, self._runner.settings
         obs = runner.observer
         ent = []
@@ -146,13 +159,16 @@ class ObserverCore(JointsCore, ObserverServices):
         ent.append(self.create_timer(s["diagnostics.period"], self._publish_diagnostics,
                                      clock=steady))
         ent.append(self.create_timer(REFRESH_S, self._refresh, clock=steady))
-        self._entities = ent
+        ent += self._open_arm()
         self._jump_handle = None
         self._arm_jump_callback()
+        return ent
 
     def _refresh(self) -> None:
         """Every REFRESH_S: which outputs have subscribers (and, per-joint mode, sim time)."""
         self._out.refresh()
+        if self._arm is not None:
+            self._arm.refresh()
         if self._runner.joints:
             self._refresh_sim_time()
 
@@ -191,6 +207,8 @@ class ObserverCore(JointsCore, ObserverServices):
                         if new.get(k) != self._params.flat.get(k)}
                 if diff and diff <= OUTPUT_ONLY:     # the outputs' business: no restart
                     return self._change_outputs(new, params)
+                if self._arm_takes(diff):            # a payload: into the running estimator
+                    return self._arm_payload(new, params)
                 self._runner.reconfigure(new)
         except ConfigError as exc:
             return self._refuse_change(params, str(exc))
@@ -351,7 +369,8 @@ class ObserverCore(JointsCore, ObserverServices):
         # not at all (/clock comes from the player of the data): the runner's rules, as replayed
         clock = self.get_clock()
         sample = joint_state_sample(msg, self._runner.settings,
-                                    None if clock.ros_time_is_active else clock.now().nanoseconds * 1e-9)
+                                    None if clock.ros_time_is_active else clock.now().nanoseconds * 1e-9,
+                                    self._runner.intake)
         if sample.__class__ is str:
             self._reject(sample)
             return
@@ -373,6 +392,8 @@ class ObserverCore(JointsCore, ObserverServices):
     def _publish(self, out, sec: int, nanosec: int) -> None:
         """Publish one Output; every message carries the measurement time (never now())."""
         self._out.publish(out, sec, nanosec)
+        if self._arm is not None:
+            self._arm.publish(out, sec, nanosec)
         self._published += 1
         self._win_published += 1
 
@@ -422,9 +443,10 @@ class ObserverCore(JointsCore, ObserverServices):
         if not self._enabled:
             level = max(level, 1)
             message = disabled + message
-        self._out.publish_diagnostics(
-            ns, level, f"{self.get_name()}: observer", message,
-            runner.settings["diagnostics.hardware_id"] or runner.observer_type, values)
+        hw = runner.settings["diagnostics.hardware_id"] or runner.observer_type
+        self._out.diag.publish(diagnostic_array(
+            ns, [(level, f"{self.get_name()}: observer", message, hw, values)]
+            + self._arm_statuses(hw)))
 
     # ------------------------------------------------------------- accessors
     def executor_kind(self) -> str:

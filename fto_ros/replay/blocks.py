@@ -101,7 +101,7 @@ def _joint_rows(runner, msgs, log_t_ns, width: int):
     for msg, t_log in zip(msgs, log_t_ns.tolist()):
         st = msg.header.stamp
         s_ns = st.sec * 1_000_000_000 + st.nanosec
-        sample = joint_state_sample(msg, settings, t_log * 1e-9)
+        sample = joint_state_sample(msg, settings, t_log * 1e-9, runner.intake)
         if sample.__class__ is str:
             out.append((0.0, s_ns, None, None, None, sample))
             continue

@@ -52,6 +52,7 @@ from ..plant.block import units_of
 from ..runner.params_file import load_params_files
 from ..runner.runner import Runner
 from ..runner.status import LEVEL_NAMES
+from . import arm_metrics as AM
 from . import joint_metrics as JM
 from . import metrics as M
 from .run import _Run, _run
@@ -206,6 +207,11 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
         truth_t, truth_x, why = _truth_rows(streams.truth, inp.truth_topic, n, "",
                                             f"the observer has {n} states")
         truth_note = why or truth_note
+    arm_ui = None
+    if runner.intake is not None and "truth_joints" in inp.roles:     # an arm's, by name
+        truth_t, truth_x, arm_w, why = AM.truth(streams.truth_joints, obs)
+        truth_note = why or truth_note
+        arm_ui = None if truth_t is None else (truth_t, arm_w)
     errors = conv_time = err_t = err_norm = None
     if truth_x is not None and not t_est_ns.size:
         truth_note = "no accepted samples: nothing to compare with the ground truth"
@@ -229,7 +235,7 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
             err_norm = np.sqrt(np.sum(err * err, axis=1))
         elif truth_note is None:
             truth_note = "no estimate lies within the ground truth's time range"
-    ui_errors, ui_note, ui_plot = _unknown_input_errors(obs, run, t_est_ns, conv, settle)
+    ui_errors, ui_note, ui_plot = _unknown_input_errors(obs, run, t_est_ns, conv, settle, arm_ui)
     p50_obs, p99_obs = runner.update_time_us()
     duration_s = info.duration_ns / 1e9
     wall = run.timing["replay_total"]
@@ -301,6 +307,9 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
     if runner.joints:
         metrics.update(joints=list(runner.joints), joint_errors=joint_errors,
                        truth_topic=inp.truth_topic if "truth_joints" in inp.roles else None)
+    if runner.intake is not None:                      # an arm's external torques
+        metrics["arm"] = AM.metrics(runner, run, *(arm_ui or (None, None)),
+                                    len(streams.joints[1]))
     if "mode" in runner.convergence_fields:            # a composition (track)
         t_rel = (t_est_ns - t_start_ns) / 1e9 if t_start_ns is not None else np.zeros(0)
         metrics["composition"] = M.composition(t_rel, conv, runner.convergence_fields)
@@ -338,8 +347,9 @@ def _truth_rows(stream, topic: str, width: int, kind: str, has: str):
 
 
 def _unknown_input_errors(obs, run: _Run, t_est_ns: np.ndarray, conv: np.ndarray,
-                          settle: float) -> tuple[dict | None, str | None, tuple | None]:
-    """(errors like 'errors' but for the unknown input, a note, plot data) of a finished run."""
+                          settle: float, given=None) -> tuple[dict | None, str | None, tuple | None]:
+    """(errors like 'errors' but for the unknown input, a note, plot data) of a finished run;
+    ``given``: its truth (stamps, rows) when not a topic of its own (an arm's)."""
     if not run.est_ui.size:
         note = None if not obs.has_unknown_input else \
             "the observer published no unknown-input estimate"
@@ -350,7 +360,9 @@ def _unknown_input_errors(obs, run: _Run, t_est_ns: np.ndarray, conv: np.ndarray
     names = list(getattr(obs, "unknown_input_names", None) or [f"zeta{j}" for j in range(q)])
     truth_t = truth_x = None
     note = run.inputs.truth_ui_note
-    if "truth_ui" in run.inputs.roles:
+    if given is not None:
+        (truth_t, truth_x), note = given, None
+    elif "truth_ui" in run.inputs.roles:
         truth_t, truth_x, why = _truth_rows(run.inputs.streams.truth_ui,
                                             run.inputs.truth_ui_topic, q,
                                             "unknown-input ", f"the estimate has {q}")

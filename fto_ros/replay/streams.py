@@ -105,7 +105,8 @@ def _roles(info, runner, fqn: str, bag_path: Path) -> Inputs:
     truth_note = None
     if truth_topic not in topics:
         truth_note = f"no ground truth: the bag has no topic {truth_topic}"
-    elif runner.joints and topics[truth_topic].msgtype == JOINT_STATE:
+    elif (runner.joints or runner.intake is not None) and \
+            topics[truth_topic].msgtype == JOINT_STATE:
         roles["truth_joints"] = truth_topic          # mapped by joint name
     elif runner.joints:
         truth_note = (f"no ground truth: {truth_topic} is {topics[truth_topic].msgtype}; with "

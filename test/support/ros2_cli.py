@@ -34,7 +34,7 @@ DEST = VENV / "ros2-tools"
 _DAEMON_VERBS = {"param", "node", "lifecycle", "topic", "service"}
 _NO_DAEMON_SUBVERBS = {"call", "pub", "bw", "delay", "hz"}     # these take no --no-daemon
 EXECUTABLES = ("observer_node", "managed_observer_node")
-EXECUTABLES += ("external_torque_node",)       # test_torque_node.py
+EXECUTABLES += ("external_torque_node",)       # test/system/test_arm_node_live.py
 
 
 def candidates() -> list[Path]:

@@ -27,7 +27,7 @@ INTERFACE = ROOT / "docs" / "ros_interface.md"
 FILES = sorted(LAUNCH.glob("*.launch.py"))
 MAIN = LAUNCH / "observer.launch.py"
 EXAMPLES = [f for f in FILES if f != MAIN]
-#: the external-torque node's (no observer, no params-file choice): test_torque_node.py
+#: the external-torque node's (no observer, no params-file choice): test/system/test_arm_node_live.py
 TORQUE = LAUNCH / "arm7_external_torque.launch.py"
 EXAMPLES = [f for f in EXAMPLES if f != TORQUE]
 

@@ -21,7 +21,7 @@ FORBIDDEN = {
              "fto_ros.nodes", "fto_ros.replay", "fto_ros.bag", "fto_ros.cli", "fto_ros.models",
              "fto_ros.plant", "fto_ros.arm"},
     # the arm room: rigid bodies from their URDF (compiled dynamics, Pinocchio the reference),
-    # the external-torque steps and collision detection: above core/, below models/ (the arm
+    # the window numerics and the in-kernel detection: above core/, below models/ (the arm
     # simulator) and observers/
     "arm": {"rclpy", "rosbags", "mcap", "matplotlib", "fto_ros.models", "fto_ros.observers",
               "fto_ros.plant", "fto_ros.runner", "fto_ros.nodes", "fto_ros.replay", "fto_ros.bag",
@@ -109,7 +109,7 @@ def test_lower_layers_load_without_rclpy():
     """Import core, models, observers, runner with rclpy made unimportable."""
     code = ("import sys; sys.modules['rclpy'] = None\n"
             "import fto_ros.core.discretize, fto_ros.models.dc_motor, fto_ros.observers, fto_ros.plant\n"
-            "import fto_ros.arm.external_torque, fto_ros.arm.collision, fto_ros.models.arm\n"
+            "import fto_ros.arm.detect, fto_ros.arm.collision, fto_ros.models.arm\n"
             "import fto_ros.runner\n"
             "from fto_ros.runner import Runner\n"
             "from fto_ros.runner.params_file import load_params_files\n"

@@ -66,7 +66,7 @@ def _cases():
     out = [pytest.param(main, "single_delay", id="observer.launch.py"),
            pytest.param(main + ("managed:=true",), "single_delay", id="observer.launch.py-managed")]
     for path in sorted(LAUNCH.glob("*.launch.py")):
-        if path.name == "arm7_external_torque.launch.py":     # test_torque_node.py
+        if path.name == "arm7_external_torque.launch.py":     # test/system/test_arm_node_live.py
             continue
         if path.name != "observer.launch.py":
             out.append(pytest.param((path.name,), _observer_type(_default_config(path)),

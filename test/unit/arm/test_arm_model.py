@@ -1,6 +1,6 @@
 """Arms from their URDF (fto_ros.arm, fto_ros.models.arm, fto-simulate --urdf): dynamics
-against hand-computed cases, refusals, the estimators' claims, collision detection on the
-committed bags, reproducibility (junk into the new inputs: test_faults_arm.py). ROS-free."""
+against hand-computed cases, the wrench and a frame's pose, refusals, reproducibility (the
+estimators: test/unit/observers/test_external_torque*.py). ROS-free."""
 from __future__ import annotations
 
 import math
@@ -10,12 +10,9 @@ import numpy as np
 import pytest
 from two_processes import assert_bitwise_equal, run_twice
 
-from fto_ros.core.differentiator import Differentiator
 from fto_ros.core.errors import ConfigError
 from fto_ros.models.arm import ArmSettings, Contact, simulate_arm
-from fto_ros.arm import load_model, steps
-from fto_ros.arm.collision import CollisionDetector, detection_time, threshold_sigmas
-from fto_ros.arm.external_torque import WindowEstimator, run_over
+from fto_ros.arm import load_model
 from fto_ros.arm.source import MAX_URDF_BYTES
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -106,12 +103,28 @@ def test_user_order_locking_and_friction():
     assert arm.viscous.tolist()[:2] == [1.0, 1.0] and arm.coulomb[0] == 1.2   # the URDF's
     q = np.array([0.1, 0.5, 0.2, -1.2, 0.3, 0.8, 0.1])
     assert arm.jacobian("link_6", q).shape == (6, 7)
-    f = np.array([45.0, -10.0, 5.0])
-    tau = arm.jacobian("link_6", q)[:3].T @ f
-    np.testing.assert_allclose(arm.wrench("link_6", q, tau, force_only=True), [*f, 0, 0, 0],
-                               atol=1e-9)
-    np.testing.assert_allclose(arm.jacobian("link_6", q).T @ arm.wrench("link_6", q, tau), tau,
-                               atol=1e-9)
+    w = np.array([45.0, -10.0, 5.0, 1.5, -2.0, 0.7])          # (f; m) at link_6's origin
+    tau = arm.jacobian("link_6", q).T @ w
+    np.testing.assert_allclose(arm.wrench("link_6", q, tau), w, atol=1e-9)
+    damped = arm.wrench("link_6", q, tau, damping=1e-3)
+    assert np.abs(damped - w).max() < 1e-3 * np.abs(w).max()
+    assert np.abs(arm.wrench("link_6", q, tau, damping=1.0) - w).max() > 1e-3
+
+
+def test_a_frames_pose_moves_as_its_jacobian_says():
+    """frame_pose's origin, differentiated along each joint, is the Jacobian's linear column;
+    its axes are a rotation."""
+    arm = load_model(JOINTS, urdf=URDF)
+    q = np.array([0.1, 0.5, 0.2, -1.2, 0.3, 0.8, 0.1])
+    R, p = arm.frame_pose("link_6", q)
+    np.testing.assert_allclose(R.T @ R, np.eye(3), atol=1e-12)
+    assert np.linalg.det(R) == pytest.approx(1.0)
+    J = arm.jacobian("link_6", q)
+    for i in range(7):
+        d = np.zeros(7)
+        d[i] = 1e-6
+        dp = (arm.frame_pose("link_6", q + d)[1] - arm.frame_pose("link_6", q - d)[1]) / 2e-6
+        np.testing.assert_allclose(dp, J[:3, i], atol=1e-6)
 
 
 @pytest.mark.parametrize("kwargs, param, words", [
@@ -133,8 +146,8 @@ def test_bad_urdf_sources_are_refused_in_one_line(kwargs, param, words):
 
 
 @pytest.mark.parametrize("joints, locked, param, words", [
-    (["j1", "nope", "zz"], None, "plant.joints", "no movable joint(s) nope, zz"),
-    (["j1", "j1"], None, "plant.joints", "twice"),
+    (["j1", "nope", "zz"], None, "joints", "no movable joint(s) nope, zz"),
+    (["j1", "j1"], None, "joints", "twice"),
     (["j1"], {"j3": 0.0}, "plant.locked_joints", "no joint(s) j3"),
     (["j1"], {"j2": float("nan")}, "plant.locked_joints", "finite"),
     (["j1", "j2"], {"j2": 0.0}, "plant.locked_joints", "also in"),
@@ -191,130 +204,6 @@ def test_simulation_is_reproducible_by_seed():
     assert np.all(np.abs(a["q_measured"] / 2 ** -18 - np.round(a["q_measured"] / 2 ** -18)) < 1e-6)
 
 
-def run(est, r):
-    return run_over(est, r.t, r.q_measured, r.tau)
-
-
-def test_window_estimate_is_exact_after_its_window_without_noise(arm, clean_contact):
-    """tau_ext_hat(t) = the kernel's average of the true tau_ext over [t - T, t] from t = T
-    after the restart, contact onset included (errors: quadrature and velocity terms)."""
-    r = clean_contact
-    est = WindowEstimator(arm, window=0.03)
-    E, V = run(est, r)
-    W = est.samples
-    weights = np.diff(steps.kernel(np.arange(W + 1) / W, -1))
-    avg = np.full_like(E, np.nan)
-    for k in range(W, r.t.size):
-        avg[k] = weights @ r.tau_ext[k - 1 - np.arange(W)]
-    assert np.all(np.isnan(E[:W])) and np.all(np.isfinite(E[W:]))
-    err = np.abs(E - avg)[W + 1:]
-    assert err.max() < 0.1                  # measured 0.056 (the onset of 28.6 Nm), 1e-3 before
-    assert np.abs(E - avg)[(r.t > 0.05) & (r.t < 1.0)].max() < 5e-3
-    assert est.step_response(0.03) == 1.0 and est.step_response(0.015) == pytest.approx(0.5)
-    # the differentiator's velocities (the small velocity terms' provisional values and the
-    # published velocity) in free motion; it lags the contact's acceleration jumps
-    assert np.sqrt(np.mean((V - r.v)[(r.t > 0.05) & (r.t < 1.0)] ** 2)) < 1e-3
-
-
-def test_momentum_observer_is_a_first_order_filter_of_tau_ext(arm, clean_contact):
-    """The GMO step on the true velocities: r' = K (tau_ext - r)."""
-    r = clean_contact
-    K = 50.0
-    state, ref = steps.gmo_init(7), np.zeros(7)
-    worst = 0.0
-    for k in range(r.t.size):
-        q, v = r.q[k], r.v[k]
-        M, _, CTv, g = arm.momentum_terms(q, v)
-        state = steps.gmo_step(state, np.full(7, K), 1e-3, q, r.tau[k], M @ v,
-                               CTv - g - arm.friction(v))
-        if k:
-            ref = ref + (1 - math.exp(-K * 1e-3)) * (r.tau_ext[k - 1] - ref)
-            worst = max(worst, np.abs(steps.gmo_output(state, 7) - ref).max())
-        if r.t[k] == pytest.approx(1.0 + 1 / K):
-            assert steps.gmo_output(state, 7)[1] / r.tau_ext[k, 1] == \
-                pytest.approx(1 - math.exp(-1), abs=0.03)
-    assert worst < 0.02 * np.abs(r.tau_ext).max()
-
-
-def test_collision_detected_on_the_committed_bag_within_10_ms():
-    from fto_ros.cli.simulate_arm import read_arm_bag
-    r, meta = read_arm_bag(ROOT / "bags" / "arm7_contact_link6")
-    assert meta["contacts"][0]["link"] == "link_6" and r.q.shape == (10001, 7)
-    model = load_model(JOINTS, urdf=URDF)
-    est = WindowEstimator(model, window=0.03)
-    det = CollisionDetector(7, calibration=2.0)
-    events = []
-    for k in range(r.t.size):
-        out = est.update(r.t[k], r.q_measured[k], r.tau[k])
-        if out is not None and r.t[k] >= 0.5:
-            ev = det.update(r.t[k], out, est.noise_gain(r.q_measured[k]))
-            if ev:
-                events.append(ev)
-        if r.t[k] > 6.5:
-            break
-    assert det.z == pytest.approx(threshold_sigmas(1e-2, 1000, 7)) and det.z > 6
-    # every detection is during the contact (6.0-6.08 s) or its release; joint_a2 (28.6 Nm)
-    # fires within 10 ms, and within the guaranteed time for its size
-    assert events and all(6.0 < ev.t < 6.2 for ev in events) and events[0].t <= 6.010
-    t2 = min(ev.t for ev in events if 1 in ev.joints)
-    gain = est.noise_gain(r.q_measured[6000])[1]
-    dt = detection_time(est.step_response, 28.5, det.threshold[1] * gain, det.sigma[1] * gain)
-    assert t2 - 6.0 <= dt + 1e-3 and dt < 0.01
-
-
-def test_no_detection_on_the_contact_free_bag():
-    from fto_ros.cli.simulate_arm import read_arm_bag
-    r, _ = read_arm_bag(ROOT / "bags" / "arm7_free")
-    est = WindowEstimator(load_model(JOINTS, urdf=URDF), window=0.03)
-    det = CollisionDetector(7, calibration=2.0)
-    for k in range(r.t.size):
-        out = est.update(r.t[k], r.q_measured[k], r.tau[k])
-        if out is not None and r.t[k] >= 0.5:
-            assert det.update(r.t[k], out, est.noise_gain(r.q_measured[k])) is None
-    # calibrated in radians of encoder noise: the encoder's 1e-5, at its upper bound
-    assert np.all((det.sigma > 0.95e-5) & (det.sigma < 1.25e-5))
-
-
-def test_detector_rearms_after_the_contact():
-    det = CollisionDetector(1, sigma=[1.0], hold=0.01)
-    th = det.threshold[0]
-    seq = [0.0] * 5 + [2 * th] * 5 + [0.0] * 20 + [2 * th]
-    events = [det.update(k * 1e-3, [x]) for k, x in enumerate(seq)]
-    fired = [k for k, e in enumerate(events) if e]
-    assert fired == [5, 30]
-
-
-# -- steps: reuse of the differentiator, junk -----------------------------------------------
-def test_red_step_is_the_package_differentiator():
-    rng = np.random.default_rng(0)
-    c = steps.red_consts(2, 20.0, 2.0)
-    d = Differentiator(2, 20.0, channels=3, rho=2.0)
-    f = rng.standard_normal(3)
-    d.reset(f)
-    s = steps.red_init(c, f)
-    for k in range(200):
-        f = np.sin(0.01 * k + np.arange(3)) + 1e-4 * rng.standard_normal(3)
-        ref = d.update(1e-3, f)
-        s = steps.red_step(s, c, 1e-3, f)
-        np.testing.assert_allclose(steps.red_output(s, c, 3), ref, rtol=1e-12, atol=1e-12)
-
-
-def test_window_step_never_writes_its_input_state(arm):
-    c = steps.window_consts(7, 8, 1e-3, arm.viscous)
-    s = steps.window_init(c)
-    s[:] = np.arange(s.size)
-    before = s.copy()
-    M = np.eye(7)
-    bad = [dict(y=np.full(7, np.nan)), dict(u=np.full(7, np.inf)), dict(h=2e-3), dict(h=-1.0),
-           dict(M=np.full((7, 7), np.nan))]
-    for b in bad:
-        args = dict(h=1e-3, y=np.zeros(7), u=np.zeros(7), M=M, Mdot=M, phi=np.zeros(7)) | b
-        with pytest.raises(ValueError):
-            steps.window_step(s, c, args["h"], args["y"], args["u"], args["M"], args["Mdot"],
-                              args["phi"])
-    np.testing.assert_array_equal(s, before)
-
-
 # -- fto-simulate --urdf ---------------------------------------------------------------------
 def test_fto_simulate_urdf_writes_a_bag_that_reads_back(tmp_path, capsys):
     from fto_ros.cli.simulate import main
@@ -342,19 +231,3 @@ def test_fto_simulate_urdf_refuses_bad_arguments_in_one_line(tmp_path, capsys, a
                  *args]) == 2
     err = capsys.readouterr().err.strip()
     assert words in err and "\n" not in err and not (tmp_path / "x").exists()
-
-
-def test_the_main_jobs_torque_table_compares_the_three_estimators(tmp_path):
-    """fto-report's arm table (cli/torque_table.py) on the contact-free bag: a row per
-    estimator, this package's window quieter in free motion than the momentum observer,
-    no false alarm."""
-    from fto_ros.cli.torque_table import MAIN_JOB, table
-    (tmp_path / "arm7_free").symlink_to(ROOT / "bags" / "arm7_free")
-    text = table(tmp_path, ROOT / "urdf" / "arm7.urdf")
-    rows = [line.split(" | ") for line in text.splitlines()[2:]]
-    assert [r[0].lstrip("| ") for r in rows] == list(MAIN_JOB)
-    rms = {r[0].lstrip("| "): float(r[3]) for r in rows}
-    window, gmo = list(MAIN_JOB)[:2]
-    assert rms[window] < 0.5 * rms[gmo]
-    assert all(r[6].rstrip(" |") == "0" for r in rows)
-    assert table(tmp_path / "none", ROOT / "urdf" / "arm7.urdf") is None
