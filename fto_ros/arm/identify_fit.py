@@ -31,12 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..core.errors import FtoRosError
-
-
-class FitRefused(FtoRosError, ValueError):
-    """A stretch the fit cannot use (contacts everywhere, fewer windows than unknowns, no
-    unknown the data can see)."""
+from ..core.errors import FitRefused  # noqa: F401 (raised here; importers take it from here too)
 
 
 @dataclass

@@ -28,16 +28,12 @@ from __future__ import annotations
 import numpy as np
 from scipy import sparse
 
-from ..core.errors import FtoRosError
+from ..core.errors import WindowError  # noqa: F401 (raised here; importers take it from here too)
 from ..core.jit import jit
 
 #: Gauss-Legendre nodes and weights on [0, 1] (3 points)
 _GL_X = np.array([0.5 - 0.5 * np.sqrt(0.6), 0.5, 0.5 + 0.5 * np.sqrt(0.6)])
 _GL_W = np.array([5.0, 8.0, 5.0]) / 18.0
-
-
-class WindowError(FtoRosError, ValueError):
-    """A recording the window form cannot use (too short, a gap in every window)."""
 
 
 @jit

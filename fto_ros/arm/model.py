@@ -34,7 +34,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from ..core.errors import ConfigError, FtoRosError, short
+from ..core.errors import ArmInputError, ConfigError, short  # noqa: F401 (ArmInputError re-exported)
 from . import dynamics as dyn
 from .source import read_source
 from .tree import ACTIVE, ARMATURE, MULT, Tree
@@ -42,10 +42,6 @@ from .urdf import Urdf, default_joints, parse
 
 #: default width w of the Coulomb friction's smooth sign tanh(v / w), rad/s
 DEFAULT_FRICTION_WIDTH = 0.02
-
-
-class ArmInputError(FtoRosError, ValueError):
-    """A call with vectors of the wrong size (a caller's error, not a sample's)."""
 
 
 def _as_vector(values, n: int, name: str, *, nonnegative: bool = False) -> np.ndarray:

@@ -40,7 +40,7 @@ from ..arm.identify_windows import WindowError
 from ..bag import BagError
 from ..core.command_line import guarded, non_negative_float, one_line, positive_float, \
     positive_int
-from ..core.errors import ConfigError
+from ..core.errors import CommandLineError, ConfigError
 from ..core.output_dir import OutputError, OutputExists, check_output_file
 from ..runner.params_file import DEFAULT_NODE_NAME, load_params_files
 from .identify_stream import StreamError, read_stream, stretch_mask
@@ -60,7 +60,7 @@ def _segment(text: str) -> tuple[float, float]:
     except ValueError:
         lo = hi = float("nan")
     if not sep or not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
-        raise argparse.ArgumentTypeError(f"expected A:B with A < B (seconds), got {text!r}")
+        raise CommandLineError(f"expected A:B with A < B (seconds), got {text!r}")
     return lo, hi
 
 

@@ -12,14 +12,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..bag import BagError, BagReader
-from ..core.errors import ConfigError, FtoRosError
+from ..core.errors import ConfigError, StreamError  # noqa: F401 (StreamError: this module's refusals)
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
-
-
-class StreamError(FtoRosError, ValueError):
-    """A stream the identification cannot use (exit 1): no efforts, joints missing, nothing
-    left in the stretch."""
 
 
 @dataclass

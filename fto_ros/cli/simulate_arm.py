@@ -47,7 +47,7 @@ from .. import __version__
 from ..bag import BagError
 from ..core.command_line import guarded, non_negative_float, one_line, positive_float, \
     positive_int
-from ..core.errors import ConfigError, FtoRosError
+from ..core.errors import CommandLineError, ConfigError, FtoRosError
 from ..models import arm_stream
 from ..models.arm import ArmSettings, Contact, Gripper, simulate_arm
 from ..models.arm_urdf import MOVABLE, perturbed, trunk, urdf_joints, without_mimic
@@ -69,14 +69,14 @@ class _Parser(argparse.ArgumentParser):
 def _contact(text: str) -> Contact:
     parts = text.split(",")
     if len(parts) not in (6, 7):
-        raise argparse.ArgumentTypeError(f"expected LINK,T,DURATION,FX,FY,FZ[,RISE], got {text!r}")
+        raise CommandLineError(f"expected LINK,T,DURATION,FX,FY,FZ[,RISE], got {text!r}")
     try:
         nums = [float(p) for p in parts[1:]]
     except ValueError:
-        raise argparse.ArgumentTypeError(f"T, DURATION, the force and RISE must be numbers, "
+        raise CommandLineError(f"T, DURATION, the force and RISE must be numbers, "
                                          f"got {text!r}") from None
     if not all(math.isfinite(x) for x in nums) or nums[1] <= 0 or (len(nums) == 6 and nums[5] < 0):
-        raise argparse.ArgumentTypeError(f"need finite numbers, DURATION > 0, RISE >= 0: {text!r}")
+        raise CommandLineError(f"need finite numbers, DURATION > 0, RISE >= 0: {text!r}")
     return Contact(parts[0].strip(), nums[0], nums[1], tuple(nums[2:5]),
                    nums[5] if len(nums) == 6 else 0.0)
 
@@ -88,7 +88,7 @@ def _lock(text: str) -> tuple[str, float]:
     except ValueError:
         x = math.nan
     if not sep or not name or not math.isfinite(x):
-        raise argparse.ArgumentTypeError(f"expected NAME=POSITION, got {text!r}")
+        raise CommandLineError(f"expected NAME=POSITION, got {text!r}")
     return name, x
 
 
@@ -98,7 +98,7 @@ def _numbers(text: str) -> list[float]:
     except ValueError:
         out = [math.nan]
     if not all(math.isfinite(x) for x in out):
-        raise argparse.ArgumentTypeError(f"expected finite numbers separated by commas, got "
+        raise CommandLineError(f"expected finite numbers separated by commas, got "
                                          f"{text!r}")
     return out
 
@@ -106,14 +106,14 @@ def _numbers(text: str) -> list[float]:
 def _positive_numbers(text: str) -> list[float]:
     out = _numbers(text)
     if not all(x > 0 for x in out):
-        raise argparse.ArgumentTypeError(f"every value must be > 0, got {text!r}")
+        raise CommandLineError(f"every value must be > 0, got {text!r}")
     return out
 
 
 def _friction(text: str) -> tuple[float, float, float, float]:
     out = _numbers(text)
     if len(out) != 4 or not (0 <= out[0] <= out[1] and 0 <= out[2] <= out[3]):
-        raise argparse.ArgumentTypeError(f"expected VISC_LO,VISC_HI,COUL_LO,COUL_HI with "
+        raise CommandLineError(f"expected VISC_LO,VISC_HI,COUL_LO,COUL_HI with "
                                          f"0 <= LO <= HI, got {text!r}")
     return tuple(out)
 
@@ -124,7 +124,7 @@ def _payload(text: str) -> tuple:
     nums = _numbers(rest) if rest else []
     if not frame.strip() or len(nums) not in (1, 4, 7) or nums[0] <= 0 or \
             any(x < 0 for x in nums[4:]):
-        raise argparse.ArgumentTypeError(f"expected FRAME,MASS[,CX,CY,CZ[,IXX,IYY,IZZ]] with "
+        raise CommandLineError(f"expected FRAME,MASS[,CX,CY,CZ[,IXX,IYY,IZZ]] with "
                                          f"MASS > 0 and moments >= 0, got {text!r}")
     nums = nums + [0.0] * (7 - len(nums))
     return frame.strip(), nums[0], tuple(nums[1:4]), tuple(nums[4:7])
@@ -133,14 +133,14 @@ def _payload(text: str) -> tuple:
 def _probability(text: str) -> float:
     x = non_negative_float(text)
     if x >= 1:
-        raise argparse.ArgumentTypeError(f"must be a probability in [0, 1), got {text!r}")
+        raise CommandLineError(f"must be a probability in [0, 1), got {text!r}")
     return x
 
 
 def _model_error(text: str) -> float:
     x = non_negative_float(text)
     if x >= 1:
-        raise argparse.ArgumentTypeError(f"must be a relative error in [0, 1), got {text!r}")
+        raise CommandLineError(f"must be a relative error in [0, 1), got {text!r}")
     return x
 
 
@@ -149,7 +149,7 @@ def _topic(text: str) -> str:
     parts = name[1:].split("/")
     if not all(p and (p[0].isalpha() or p[0] == "_") and all(c.isalnum() or c == "_" for c in p)
                for p in parts):
-        raise argparse.ArgumentTypeError(f"not a ROS topic name: {text!r}")
+        raise CommandLineError(f"not a ROS topic name: {text!r}")
     return name
 
 

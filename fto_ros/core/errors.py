@@ -121,6 +121,26 @@ class BagError(FtoRosError):
     """A bag cannot be read or written; the message names the path and the problem."""
 
 
+class StreamError(FtoRosError, ValueError):
+    """A recorded stream a command cannot use (exit 1): fto-identify's JointState topic
+    without efforts, without the joints, or with nothing left in the stretch."""
+
+
+class FitRefused(FtoRosError, ValueError):
+    """A stretch fto-identify's fit cannot use (contacts everywhere, fewer windows than
+    unknowns, no unknown the data can see)."""
+
+
+class WindowError(FtoRosError, ValueError):
+    """A recording the identification's window form cannot use (too short, a gap in every
+    window)."""
+
+
+class ArmInputError(FtoRosError, ValueError):
+    """A call of the arm model with vectors of the wrong size (a caller's error, not a
+    sample's)."""
+
+
 class NotFast(FtoRosError):
     """The fast MCAP path (bag/mcap_scan.py) cannot read this bag; use BagReader."""
 

@@ -36,10 +36,10 @@ import numpy as np
 
 from ..core.errors import ConfigError
 from ..arm.model import RigidBodyModel
-from .arm_plant import ArmPlant, Contact, SimulationError, check_contacts
+from .arm_plant import ArmPlant, Contact, SimulationFailed, check_contacts
 from .arm_stream import sample_instants
 
-__all__ = ["ArmRun", "ArmSettings", "Contact", "Gripper", "SimulationError", "simulate_arm"]
+__all__ = ["ArmRun", "ArmSettings", "Contact", "Gripper", "SimulationFailed", "simulate_arm"]
 
 
 @dataclass
@@ -147,7 +147,7 @@ def simulate_arm(model: RigidBodyModel, s: ArmSettings, *, driven=None,
     """Run the simulation (module doc). ``model``: the true arm, every joint that moves;
     ``driven``: the joints the controller drives (names; default: all); ``gripper``: the
     others; ``nominal``: the controller's model, the same joints (default: ``model``).
-    ConfigError for bad settings, SimulationError for a run that diverges."""
+    ConfigError for bad settings, SimulationFailed for a run that diverges."""
     nominal = model if nominal is None else nominal
     if tuple(nominal.joints) != tuple(model.joints):
         raise ConfigError("joints", "the nominal and the true model need the same joints")

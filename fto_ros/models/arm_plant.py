@@ -22,11 +22,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..core.errors import ConfigError, FtoRosError
-
-
-class SimulationError(FtoRosError, RuntimeError):
-    """The simulation cannot go on (it diverged)."""
+from ..core.errors import ConfigError, SimulationFailed
 
 
 @dataclass(frozen=True)
@@ -157,7 +153,7 @@ class ArmPlant:
             for i in range(steps):
                 q, v = self._rk4(a + i * hs, hs, q, v, tauA, active)
         if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
-            raise SimulationError(f"the simulation diverged at t = {t1:.4f} s")
+            raise SimulationFailed(f"the simulation diverged at t = {t1:.4f} s")
         return q, v
 
     def _rk4(self, ts, hs, q, v, tau, active):

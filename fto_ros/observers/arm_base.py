@@ -20,7 +20,7 @@ from scipy.stats import chi2
 from ..arm import detect as DT
 from ..arm.collision import detection_time, threshold_sigmas
 from ..arm.tree import COL
-from ..core.errors import ConfigError
+from ..core.errors import ConfigError, UsageError
 from ..arm import params as AP
 from .base import KernelObserver
 
@@ -197,7 +197,7 @@ class ArmObserver(KernelObserver):
 
     def step_response(self, elapsed: float) -> float:
         """Fraction of a step of tau_ext shown ``elapsed`` s after it (the family's)."""
-        raise NotImplementedError
+        raise UsageError(f"{type(self).__name__} does not define step_response")
 
     def diagnostics(self) -> dict[str, Any]:
         out = {"joints": ", ".join(self.joints),

@@ -197,7 +197,7 @@ def seeded_run(seed: int) -> dict[str, np.ndarray]:
 def test_simulation_is_reproducible_by_seed():
     """The same seed in two fresh processes: the same simulation, bit for bit; another seed
     another noise; the measurement on the encoder's grid."""
-    a, b = run_twice("test_rigid:seeded_run", 4, path=(Path(__file__).resolve().parent,))
+    a, b = run_twice("test_arm_model:seeded_run", 4, path=(Path(__file__).resolve().parent,))
     assert_bitwise_equal(a, b)
     c = seeded_run(5)
     assert not np.array_equal(a["q_measured"], c["q_measured"])

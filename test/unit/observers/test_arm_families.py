@@ -68,7 +68,8 @@ def test_the_model_mismatch_is_a_warn_naming_the_joints_and_the_factor():
     residual's level is far above the encoder's noise through the estimator, a WARN in
     /diagnostics naming the joints and the factor; the exact model gives none."""
     true = load_model(ARM7_JOINTS, urdf=ARM7, viscous_friction=1.8, coulomb_friction=1.9)
-    true.tree.scale_links({name: 1.05 for name in true.tree.link_params})
+    true.correct_inertia({name: 1.05 for name in true.tree.robot.links
+                          if true.tree.link_params(name)[0] >= 0})
     wrong = simulate(duration=1.6, true_model=true)
     exact = simulate(duration=1.6)
     for r, bad in ((wrong, True), (exact, False)):
