@@ -159,6 +159,11 @@ def _autostart(flat: dict, default: bool) -> bool:
     return value if isinstance(value, bool) else default
 
 
+def _is_arm(type_name) -> bool:
+    from ..observers import REGISTRY
+    return isinstance(type_name, str) and getattr(REGISTRY.get(type_name), "ARM", False)
+
+
 def preflight(exe: str, args: list[str]) -> None:
     """Build the configuration the node ``exe`` would build at start-up from ``args``:
     ConfigError naming the parameter if it would refuse it.  Nothing for a node that
@@ -167,18 +172,9 @@ def preflight(exe: str, args: list[str]) -> None:
     flat = node_parameters(args)
     if flat is None:
         return
-    if exe == "external_torque_node":
-        if not _autostart(flat, True):
-            return
-        from ..runner.torque_settings import build
-        try:
-            build(flat)
-        except ConfigError:
-            raise
-        except Exception as exc:  # noqa: BLE001  as the node's configure says it
-            raise ConfigError("plant.urdf", f"cannot build the model: {type(exc).__name__}: "
-                              + " ".join(str(exc).split())[:300]) from None
-        return
+    if not (flat.get("plant.urdf") or flat.get("robot_description")) and \
+            _is_arm(flat.get("observer.type")):
+        return                  # the node takes the URDF from the robot_description topic
     if exe == "managed_observer_node" and not _autostart(flat, False):
         return
     from ..runner import Runner

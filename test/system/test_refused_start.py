@@ -31,6 +31,10 @@ def not_urdf(tmp_path: Path) -> Path:
     return path
 
 
+#: fto-external-torque (the observer node with the arm's defaults) as its console script runs it
+ARM_NODE = ("-c", "import sys; from fto_ros.nodes.start import external_torque; "
+                  "sys.exit(external_torque())")
+
 CASES = {
     "observer, bad value": (
         "fto_ros.nodes.observer_node",
@@ -46,10 +50,10 @@ CASES = {
         lambda t: ["--params-file", str(PLANT), "--params-file", str(TUNING),
                    "-p", "single_delay.tau:=-2.0"], "single_delay.tau"),
     "torque, missing URDF": (
-        "fto_ros.nodes.torque_node", lambda t: ["-p", f"plant.urdf:={t / 'none.urdf'}"],
+        ARM_NODE, lambda t: ["-p", f"plant.urdf:={t / 'none.urdf'}"],
         "plant.urdf"),
     "torque, URDF not XML": (
-        "fto_ros.nodes.torque_node", lambda t: ["-p", f"plant.urdf:={not_urdf(t)}"],
+        ARM_NODE, lambda t: ["-p", f"plant.urdf:={not_urdf(t)}"],
         "plant.urdf"),
 }
 
@@ -57,7 +61,8 @@ CASES = {
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_the_refusal_is_the_first_line(tmp_path, case):
     module, args, parameter = CASES[case]
-    res = subprocess.run([sys.executable, "-m", module, "--ros-args", *args(tmp_path)],
+    command = list(module) if isinstance(module, tuple) else ["-m", module]
+    res = subprocess.run([sys.executable, *command, "--ros-args", *args(tmp_path)],
                          capture_output=True, text=True, timeout=300, env=ENV, cwd=tmp_path)
     assert res.returncode == 2, res.stderr
     lines = res.stderr.strip().splitlines()
