@@ -138,6 +138,21 @@ SETTINGS: tuple[Param, ...] = (
 #: ROS's own parameters that may appear in a params file
 ROS_BUILTIN = ("use_sim_time", "start_type_description_service")
 
+#: parameters that were renamed or replaced -> what to write instead (CHANGELOG.md); a
+#: params file that still gives one is refused with this message, naming the new name
+RENAMED: dict[str, str] = {
+    "plant.joints": "the joint list is 'joints' (every node, the replay and fto-identify)",
+    "sample_period": "the arm families' nominal period is '<family>.sample_period' "
+                     "(external_torque.sample_period, momentum_observer.sample_period)",
+    "external_torque.momentum_gain": "the generalized-momentum observer is its own family: "
+                                     "observer.type: momentum_observer with "
+                                     "'momentum_observer.gain'",
+    "wrench.link": "the wrench's frame is 'wrench.frame'",
+    "wrench.force_only": "replaced by 'wrench.damping' (docs/external_torque.md)",
+    "topics.external_torque": "the node publishes '~/external_torque'; remap it "
+                              "(-r ~/external_torque:=NAME) instead",
+}
+
 
 def is_arm(flat: Mapping[str, Any]) -> bool:
     """Whether ``flat`` chooses a family that estimates an arm's external torques (one
@@ -199,6 +214,9 @@ def split(flat: Mapping[str, Any]) -> tuple[dict[str, Any], type, dict[str, Any]
     if type_name is None:
         raise ConfigError("observer.type", "missing: say which observer to run (one of "
                           + ", ".join(sorted(REGISTRY)) + ")")
+    for k in flat:
+        if k in RENAMED:
+            raise ConfigError(k, f"no longer a parameter: {RENAMED[k]}")
     cls, obs_cfg, flat = _observer(flat, type_name)
     section = cls.TYPE + "."
     arm = {p.name for p in getattr(cls, "ARM_PARAMS", ())}
