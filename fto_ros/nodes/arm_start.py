@@ -4,27 +4,24 @@ from __future__ import annotations
 
 from ..core.errors import ConfigError
 from ..runner.params_file import load_params_file
+from .entry import node_fqn, ros_options
 
 NAME = "external_torque_node"
 TYPE = "external_torque"
 
 
-def _has_type(args: list[str], fqn: str) -> bool:
-    in_ros = False
-    for i, a in enumerate(args):
-        if a == "--ros-args":
-            in_ros = True
-        elif a == "--":
-            in_ros = False
-        elif in_ros and a in ("-p", "--param") and i + 1 < len(args) and \
-                args[i + 1].partition(":=")[0] == "observer.type":
-            return True
-        elif in_ros and a == "--params-file" and i + 1 < len(args):
-            try:
-                if "observer.type" in load_params_file(args[i + 1], fqn):
-                    return True
-            except (ConfigError, OSError, ValueError):
-                return True                   # the node's own check reports the file
+def _has_type(args: list[str]) -> bool:
+    fqn = node_fqn(args)
+    for option, text in ros_options(args):
+        if option != "--params-file":
+            if text.partition(":=")[0] == "observer.type":
+                return True
+            continue
+        try:
+            if "observer.type" in load_params_file(text, fqn):
+                return True
+        except (ConfigError, OSError, ValueError):
+            return True                       # the node's own check reports the file
     return False
 
 
@@ -37,8 +34,7 @@ def arm_arguments(args: list[str]) -> list[str]:
         return args
     extra = []
     if not any(a.startswith("__node:=") for a in args):
-        extra += ["-r", f"__node:={NAME}"]
-    name = next((a.partition(":=")[2] for a in args if a.startswith("__node:=")), NAME)
-    if not _has_type(args, name):
+        extra = ["-r", f"__node:={NAME}"]
+    if not _has_type(args + ["--ros-args", *extra]):
         extra += ["-p", f"observer.type:={TYPE}"]
     return args + (["--ros-args", *extra] if extra else [])
