@@ -10,8 +10,10 @@ each contact and the AFTER_CONTACT s after it; a detection is a joint's contact 
 from __future__ import annotations
 
 import math
+import sys
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -20,17 +22,15 @@ from fto_ros.replay.arm_metrics import AFTER_CONTACT, FREE_START
 from fto_ros.runner import loop as L
 from fto_ros.runner.runner import Runner
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test" / "support"))
+from arm_families import flat  # noqa: E402
+
 
 def arm_runner(family: str, joints, *, urdf=None, text=None, **params) -> Runner:
     """A Runner of ``family`` on a URDF file or text; ``params``: more flat parameters with
-    '__' for '.' (external_torque__window=0.03)."""
-    flat = {"observer.type": family, "joints": list(joints)}
-    if urdf is not None:
-        flat["plant.urdf"] = str(urdf)
-    if text is not None:
-        flat["robot_description"] = text
-    flat.update({k.replace("__", "."): v for k, v in params.items()})
-    return Runner(flat)
+    '__' for '.' (external_torque__window=0.03), read as the tests read them
+    (test/support/arm_families.py)."""
+    return Runner(flat(family, urdf, text, joints, **params))
 
 
 def rows(runner: Runner, run, offset: float = 0.0):
