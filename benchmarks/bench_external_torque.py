@@ -124,7 +124,7 @@ def main(argv=None):
             cells = [g, f"{theirs[key]:.0f}", f"{theirs['rms']:.3g}"]
             if ok:
                 rms, w = min(ok)
-                cells += [w, f"{summary(w)[key]:.0f}", f"{rms:.3g}", f"{rms / theirs['rms']:.2f}"]
+                cells += [w, f"{summary(w)[key]:.0f}", f"{rms:.3g}", f"{rms / theirs['rms']:.2g}"]
             else:
                 cells += ["none is as fast", "", "", ""]
             print("| " + " | ".join(cells) + " |")
