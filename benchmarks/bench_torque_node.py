@@ -1,26 +1,33 @@
 #!/usr/bin/env python3
-"""The external-torque node at 1 kHz against an rclpy echo node on the same stream.
+"""The arm's external-torque node (``fto-external-torque``: the observer node with the
+``external_torque`` family) at 1 kHz against an rclpy echo node on the same stream.
 
     python benchmarks/bench_torque_node.py [--duration 8] [--rounds 3] [--domain 225]
+        [--family external_torque|momentum_observer]
     python benchmarks/bench_torque_node.py --micro
 
 Live: a publisher process sends the 7-joint arm's JointState from bags/arm7_contact_link6
 (positions and commanded torques of the bag from t = 2 s on; header stamp = its start
 time + k ms; absolute 1 ms deadlines) for ``--duration`` s; two processes take the same
-stream at once: the node (``python -m fto_ros.nodes.torque_node``, the arm's URDF, the
-window estimator, collision detection, /diagnostics every 0.5 s) and an rclpy echo (the
-node's input QoS, SingleThreadedExecutor, gc.freeze, each message republished as it came).
-Per round: each process's user + system CPU time (/proc, all threads) over the publishing
-window as a share of one core, and the loss: messages sent minus those the process took
-(the node: /diagnostics accepted + rejected; the echo: its own count). The load average
-(1 min) at each round's start; the ratio node / echo per round and its median.
+stream at once: the node (``fto-external-torque`` as its console script starts it, the arm's
+URDF and joints, ``--family``: external_torque T = 60 ms or momentum_observer K = 50/s,
+collision detection, /diagnostics every 0.5 s) and an rclpy echo (the node's input QoS:
+best effort, keep last qos.depth; SingleThreadedExecutor, gc.freeze, each message
+republished as it came). Per round: each process's user + system CPU time (/proc, all
+threads) over the publishing window as a share of one core, and the loss: messages sent
+minus those the process took (the node: /diagnostics samples accepted + rejected; the echo:
+its own count); the node's contact onsets. The load average (1 min) at each round's start;
+the ratio node / echo per round and its median.
 
-``--micro``: in-process cost of each part of one sample (the same loop the node runs).
+``--micro``: in-process cost per sample of the parts the node runs (no DDS): the model's
+terms, the runner's call on one message (``set_input`` + ``process``, as the node's
+callback) and the same samples as one ``process_block`` (as the replay).
 Every DDS process: ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, ROS_DOMAIN_ID ``--domain``.
 """
 from __future__ import annotations
 
 import argparse
+import copy
 import os
 import signal
 import statistics
@@ -51,7 +58,7 @@ def publisher(duration: float) -> None:
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import JointState
 
-    from fto_ros.cli.simulate_arm import read_arm_bag
+    from fto_ros.cli.arm_bag import read_arm_bag
     run, _ = read_arm_bag(BAG)
     k0 = int(np.searchsorted(run.t, START))
     rclpy.init()
@@ -92,7 +99,14 @@ def echo(count_file: str) -> None:
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from sensor_msgs.msg import JointState
 
-    from fto_ros.nodes.torque_node import IN_QOS, OUT_QOS
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    from fto_ros.nodes.outputs import OUT_QOS
+    from fto_ros.runner.settings import SETTINGS
+    depth = next(p.default for p in SETTINGS if p.name == "qos.depth")
+    IN_QOS = QoSProfile(depth=depth, history=HistoryPolicy.KEEP_LAST,     # the node's input
+                        reliability=ReliabilityPolicy.BEST_EFFORT,
+                        durability=DurabilityPolicy.VOLATILE)
     rclpy.init()
     node = rclpy.create_node("bench_torque_echo")
     pub = node.create_publisher(JointState, "joint_states_echo", OUT_QOS)
@@ -121,15 +135,25 @@ def _env(domain: int) -> dict:
     return env
 
 
-def one_round(duration: float, domain: int, folder: Path) -> dict:
+#: fto-external-torque as its console script starts it (setup.py: fto_ros.nodes.start)
+NODE = ["-c", "import sys; from fto_ros.nodes.start import external_torque; "
+        "sys.exit(external_torque())"]
+#: the node's parameters per family (the arm's URDF and joints, its defaults otherwise)
+FAMILY = {"external_torque": ["-p", "external_torque.window:=0.06"],
+          "momentum_observer": ["-p", "observer.type:=momentum_observer",
+                                "-p", "momentum_observer.gain:=50.0"]}
+
+
+def one_round(duration: float, domain: int, folder: Path, family: str) -> dict:
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.executors import SingleThreadedExecutor
     env = _env(domain)
     count_file = folder / "echo_count"
     me = [sys.executable, str(Path(__file__).resolve())]
-    node = subprocess.Popen([sys.executable, "-m", "fto_ros.nodes.torque_node", "--ros-args",
-                             "-p", f"plant.urdf:={URDF}", "-p", "diagnostics.period:=0.5"],
+    node = subprocess.Popen([sys.executable, *NODE, "--ros-args", "-p", f"plant.urdf:={URDF}",
+                             "-p", f"joints:=[{','.join(JOINTS)}]",
+                             "-p", "diagnostics.period:=0.5", *FAMILY[family]],
                             cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
     echo_p = subprocess.Popen(me + ["--role", "echo", "--count-file", str(count_file)], cwd=ROOT,
                               env=env)
@@ -140,7 +164,7 @@ def one_round(duration: float, domain: int, folder: Path) -> dict:
 
     def on_diag(msg):
         for st in msg.status:
-            if st.name.endswith(": external torque"):
+            if st.name.endswith(": observer"):
                 last.update({kv.key: kv.value for kv in st.values})
     drv.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 10)
     ex = SingleThreadedExecutor(context=ctx)
@@ -193,7 +217,7 @@ def _measure(duration, node, echo_p, ex, last, count_file, me, env) -> dict:
     wall = c0["wall_end"] - w0
     node_cpu = (c0["node_end"] - c0["node"]) / wall
     echo_cpu = (c0["echo_end"] - c0["echo"]) / wall
-    took = int(last.get("accepted", 0)) + int(last.get("rejected", 0))
+    took = int(last.get("samples accepted", 0)) + int(last.get("samples rejected", 0))
     echo_took = int(count_file.read_text()) if count_file.exists() else 0
     # per message taken: the whole stream and its drain (both idle but for timers after it)
     node_us = (c0["node_all"] - c0["node"]) / max(took, 1) * 1e6
@@ -202,17 +226,15 @@ def _measure(duration, node, echo_p, ex, last, count_file, me, env) -> dict:
             "ratio": node_cpu / echo_cpu, "node_us": node_us, "echo_us": echo_us,
             "us_ratio": node_us / echo_us, "node_lost": sent - took, "echo_lost": sent - echo_took,
             "restarts": {k: v for k, v in last.items() if k.startswith("restarts.")},
-            "detections": last.get("detections")}
+            "detections": last.get("contact onsets")}
 
 
-def micro(n: int = 3000) -> None:
-    from fto_ros.cli.simulate_arm import read_arm_bag
-    from fto_ros.arm import steps
-    from fto_ros.runner.torque_loop import TorqueLoop
-    from fto_ros.runner.torque_settings import build
+def micro(n: int = 3000, family: str = "external_torque") -> None:
+    from benchmarks.arm_runs import arm_runner, feed, rows as block_rows
+    from fto_ros.cli.arm_bag import read_arm_bag
     run, _ = read_arm_bag(BAG)
-    setup = build({"plant.urdf": str(URDF)})
-    model = setup.model
+    runner = arm_runner(family, JOINTS, urdf=URDF)
+    model = runner.observer.model
     ks = np.arange(2000, 2000 + n)
 
     def per_sample(f):
@@ -221,39 +243,39 @@ def micro(n: int = 3000) -> None:
         for k in ks:
             f(k)
         return (time.perf_counter() - t0) / n * 1e6
-    q, v = run.q_measured, run.v
-    # the model's terms, compiled (Pinocchio's calls before: benchmarks/bench_arm_dynamics.py)
-    rows = [("model terms: M, Mdot, C'v, g (momentum_terms)",
-             per_sample(lambda k: model.momentum_terms(q[k], v[k]))),
-            ("  the same without M (the window's centre)",
-             per_sample(lambda k: model.momentum_terms(q[k], v[k], False)))]
-    for compiled in (True, False):
-        loop = TorqueLoop(build({"plant.urdf": str(URDF)}))
-        loop.est.compiled = compiled
-        loop.est.reset()
-        for k in range(1000, 1100):           # fill the window (and compile)
-            loop.process(k * 1_000_000, JOINTS, q[k], run.tau[k])
-        rows.append((f"whole sample, loop.process ({'compiled' if compiled else 'numpy'} steps)",
-                     per_sample(lambda k, lp=loop: lp.process(k * 1_000_000, JOINTS, q[k],
-                                                              run.tau[k]))))
-    W = setup.estimator.samples
-    c = steps.window_consts(7, W, 1e-3, model.viscous)
-    st = steps.window_init(c)
-    M, Md, _, _ = model.momentum_terms(q[0], v[0])
-    for k in range(W + 1):
-        st = steps.window_step(st, c, 1e-3, q[k], run.tau[k], M, Md, np.zeros(7))
-    rows.append(("numpy window_step alone", per_sample(
-        lambda k: steps.window_step(st, c, 1e-3, q[k], run.tau[k], M, Md, np.zeros(7), Md,
-                                    np.zeros(7)))))
-    from fto_ros.arm import steps_compiled
-    new = np.empty_like(st)
-    rows.append(("compiled window_step alone", per_sample(
-        lambda k: steps_compiled.window_step(st, c, q[k], run.tau[k], M, Md, np.zeros(7), Md,
-                                             np.zeros(7), True, new))))
+    q, v, tau = run.q_measured, run.v, run.tau
+    names = list(run.names)
+    take = runner.intake.take
+    # the model's terms, compiled (Pinocchio's: benchmarks/bench_arm_dynamics.py)
+    out = [("model terms: M, Mdot, C'v, g (momentum_terms)",
+            per_sample(lambda k: model.momentum_terms(q[k], v[k]))),
+           ("  the same without M (the window's centre)",
+            per_sample(lambda k: model.momentum_terms(q[k], v[k], False))),
+           ("JointState intake by name (ArmIntake.take)",
+            per_sample(lambda k: take(names, q[k], tau[k])))]
+    for k in range(1000, 2000):                # fill the window, calibrate
+        y, u = take(names, q[k], tau[k])
+        runner.set_input(k * 1e-3, u)
+        runner.process(k * 1e-3, y)
+
+    def one(k):
+        y, u = take(names, q[k], tau[k])
+        runner.set_input(k * 1e-3, u)
+        runner.process(k * 1e-3, y)
+    out.append(("whole sample: intake, set_input + process (the node's call)", per_sample(one)))
+    part = copy.copy(run)
+    for f in ("t", "q", "v", "q_measured", "tau", "tau_ext", "effort", "stamp_ns"):
+        setattr(part, f, getattr(run, f)[ks[0]:ks[-1] + 1])
+    kind, t, values = block_rows(runner, part)
+    fresh = arm_runner(family, JOINTS, urdf=URDF)
+    t0 = time.perf_counter()
+    fresh.process_block(kind, t, values)
+    out.append((f"the same {n} samples as one process_block (the replay's call, a fresh runner)",
+                (time.perf_counter() - t0) / n * 1e6))
     load = Path("/proc/loadavg").read_text().split()[0]
-    print(f"per-sample cost, 7 joints, T = 60 ms (W = {W}), {n} samples, load {load}")
+    print(f"per-sample cost, 7 joints, {family}, {n} samples of {BAG.name}, load {load}")
     print("| part | us per sample |\n|---|---|")
-    for name, us in rows:
+    for name, us in out:
         print(f"| {name} | {us:.1f} |")
 
 
@@ -265,6 +287,7 @@ def main(argv=None) -> int:
     ap.add_argument("--domain", type=int, default=225)
     ap.add_argument("--count-file")
     ap.add_argument("--micro", action="store_true")
+    ap.add_argument("--family", choices=sorted(FAMILY), default="external_torque")
     a = ap.parse_args(argv)
     if a.role == "publisher":
         publisher(a.duration)
@@ -274,15 +297,15 @@ def main(argv=None) -> int:
         return 0
     os.environ["OPENBLAS_NUM_THREADS"] = "1"
     if a.micro:
-        micro()
+        micro(family=a.family)
         return 0
     os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(a.domain))
     rows = []
     for r in range(a.rounds):
         with tempfile.TemporaryDirectory(prefix="bench_torque_") as tmp:
-            rows.append(one_round(a.duration, a.domain, Path(tmp)))
+            rows.append(one_round(a.duration, a.domain, Path(tmp), a.family))
         print(f"round {r + 1}: {rows[-1]}", flush=True)
-    print(f"\n7 joints at 1 kHz, {a.duration:g} s a round, {a.rounds} rounds")
+    print(f"\n{a.family}, 7 joints at 1 kHz, {a.duration:g} s a round, {a.rounds} rounds")
     print("| round | load (1 min) | sent | node CPU (core) | echo CPU (core) | ratio | "
           "node us/msg | echo us/msg | ratio per msg | node lost | echo lost | detections |\n"
           "|---|---|---|---|---|---|---|---|---|---|---|---|")

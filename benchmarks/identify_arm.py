@@ -12,15 +12,22 @@ pushes of the 10 Nm class, the fingers moving), one true arm (model seed 1) for 
 
 fto-identify (its main, the command's path) fits FIT with --inertia base, scale and none
 (friction only); --payload-only on GRASP with the base result merged after the plant file.
-Scored on SCORE with the window estimator (fto_ros/arm/external_torque.py's WindowEstimator,
-T = 60 ms, stamps snapped to the 1 kHz grid and a restart at each lost message, as that
-estimator needs; the fingers locked at 0.02 m) through load_model with the merged params
-(URDF, identified, and the exact model: the simulator's true arm and friction): tau_ext RMS
-error in free motion per joint (t >= 0.5 s, outside each push and the 0.3 s after it), and
-the node's collision rule (false-alarm bound 1e-2 per hour, calibrated over the first 2 s of
-estimates): delay of each push, false alarms. And the parameters against the simulator's
-truth (bag metadata): friction, the base parameters (the true arm's base combinations,
-fto_ros/arm/identify_base.py), the payload.
+Scored on SCORE with the window estimator as the node and the replay run it: the observer
+family ``external_torque`` (T = 60 ms, its collision detection at a false-alarm bound of 1e-2
+per hour, calibrated over the first 2 s of estimates) built by ``Runner`` from the merged
+params files (the plant file, then the identified one; or the exact model: the simulator's
+perturbed URDF as robot_description and its true friction), the fingers passive (their
+positions from the stream), fed the stream's JointStates through the runner's intake and
+``process_block`` on the recorded stamps (plus 1 s; benchmarks/arm_runs.py): tau_ext RMS
+error in free motion per joint (t >= 0.5 s, outside each push and the 0.3 s after it), the
+delay of each push (a joint's contact flag rising), false alarms. And the parameters against
+the simulator's truth (bag metadata): friction, the base parameters (the true arm's base
+combinations, fto_ros/arm/identify_base.py), the payload.
+
+benchmarks/arm_class.py (simulate_condition, ARM, URDF) is imported through
+:func:`_arm_class`: while it still imports the deleted torque pipeline (runner/torque_loop.py,
+runner/torque_settings.py, arm/collision.py's CollisionDetector), placeholders that raise
+when used stand in for those names in this process only; simulate_condition needs none.
 
     PYTHONPATH=. python benchmarks/identify_arm.py --out DIR [--reuse] [--json FILE]
 """
@@ -40,19 +47,47 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.arm_class import (ARM, URDF, contact_windows, free_mask,  # noqa: E402
-                                  simulate_condition)
-from fto_ros.arm import load_model  # noqa: E402
-from fto_ros.arm.collision import CollisionDetector  # noqa: E402
-from fto_ros.arm.external_torque import WindowEstimator  # noqa: E402
+from benchmarks.arm_runs import feed, score as score_fed  # noqa: E402
 from fto_ros.arm.identify_base import moving_bodies, structural_base  # noqa: E402
 from fto_ros.arm.identify_params import prior_model, read  # noqa: E402
 from fto_ros.cli.arm_bag import read_arm_bag  # noqa: E402
 from fto_ros.cli.identify import main as identify_main  # noqa: E402
 from fto_ros.models.arm_urdf import perturbed  # noqa: E402
 from fto_ros.runner.params_file import load_params_files  # noqa: E402
+from fto_ros.runner.runner import Runner  # noqa: E402
 
-LOCK = {"panda_finger_joint1": 0.02, "panda_finger_joint2": 0.02}
+
+def _arm_class():
+    """benchmarks/arm_class.py (module doc: the placeholders while it imports deleted
+    modules)."""
+    import importlib
+    import types
+    try:
+        return importlib.import_module("benchmarks.arm_class")
+    except ImportError as e:
+        print(f"(benchmarks/arm_class.py does not import: {e}; placeholders stand in for the "
+              "deleted torque pipeline's names)", file=sys.stderr)
+
+    def gone(*_a, **_k):
+        raise RuntimeError("deleted with the old torque pipeline")
+    from fto_ros.arm import collision
+    if not hasattr(collision, "CollisionDetector"):
+        collision.CollisionDetector = gone
+    for name, attr in (("fto_ros.runner.torque_loop", "TorqueLoop"),
+                       ("fto_ros.runner.torque_settings", "build")):
+        if name not in sys.modules:
+            try:
+                importlib.import_module(name)
+            except ImportError:
+                mod = types.ModuleType(name)
+                setattr(mod, attr, gone)
+                sys.modules[name] = mod
+    return importlib.import_module("benchmarks.arm_class")
+
+
+_AC = _arm_class()
+ARM, URDF, simulate_condition = _AC.ARM, _AC.URDF, _AC.simulate_condition
+
 OTHER_TRAJECTORY = ["--amplitude", "0.4,0.4,0.6,0.3,0.5,0.6,0.7",
                     "--period", "3.7,4.3,3.1,5.2,2.7,3.9,2.9"]
 PAYLOAD = ("panda_hand", 0.8, (0.01, -0.01, 0.06), (0.002, 0.003, 0.004))
@@ -94,44 +129,38 @@ def merged_model(files):
     return prior_model(read(load_params_files([str(f) for f in files])))
 
 
-def exact_model(meta):
+def exact_model(meta, plant: Path):
+    return prior_model(read(exact_params(meta, plant)))
+
+
+def exact_params(meta, plant: Path) -> dict:
+    """The flat params of the simulator's true arm: its perturbed URDF as robot_description,
+    its true friction (the plant file's joints, locks and effort meaning)."""
     text, _ = perturbed(Path(URDF).read_text(), meta["model_error"]["error"],
                         meta["model_error"]["seed"])
     fr = meta["friction"]
-    model = load_model(ARM, robot_description=text, locked_joints=LOCK,
-                       viscous_friction=fr["viscous"][:7], coulomb_friction=fr["coulomb"][:7])
-    return model
+    flat = load_params_files([plant])
+    flat.pop("plant.urdf", None)
+    flat.update({"robot_description": text, "plant.viscous_friction": fr["viscous"][:7],
+                 "plant.coulomb_friction": fr["coulomb"][:7]})
+    return flat
 
 
-def score(bag: Path, model, T: float = 0.06) -> dict:
-    """The window estimator and the collision rule on ``bag`` (module doc)."""
+#: the family's settings beside the params files' (module doc)
+ESTIMATOR = {"observer.type": "external_torque", "external_torque.window": 0.06,
+             "collision.false_alarms_per_hour": 1e-2, "collision.calibration": 2.0}
+
+
+def score(bag: Path, flat: dict) -> dict:
+    """The external_torque family and its collision detection on ``bag`` (module doc);
+    ``flat``: the merged params."""
     run, meta = read_arm_bag(bag)
-    cols = [run.names.index(j) for j in ARM]
-    est = WindowEstimator(model, 1e-3, T)
-    det = CollisionDetector(len(ARM), rate=1000.0, false_alarms_per_hour=1e-2, calibration=2.0)
-    h = 1_000_000
-    stamps = np.round(run.stamp_ns / h).astype(np.int64) * h
-    E = np.full((run.t.size, len(ARM)), np.nan)
-    events, last = [], None
-    for k in range(run.t.size):
-        if last is not None and stamps[k] - last != h:
-            est.reset()
-        out = est.update(stamps[k] * 1e-9 + 1.0, run.q_measured[k, cols], run.effort[k, cols])
-        last = stamps[k]
-        if out is not None:
-            E[k] = out
-            if det.update(run.t[k], out, est.noise_gain()) is not None:
-                events.append(run.t[k])
-    windows = contact_windows(meta)
-    free = free_mask(run.t, windows) & np.all(np.isfinite(E), axis=1)
-    rms = np.sqrt(np.mean((E - run.tau_ext[:, cols])[free] ** 2, axis=0))
-    delays = []
-    for a, b in windows:
-        hits = [t for t in events if a <= t < b + 0.3]
-        delays.append(1e3 * (min(hits) - a) if hits else math.inf)
-    false = sum(1 for t in events if not any(a <= t < b + 0.3 for a, b in windows))
-    return {"rms": rms.tolist(), "delays_ms": delays, "false_alarms": false,
-            "calibrated": det.sigma is not None}
+    runner = Runner({**flat, **ESTIMATOR})
+    cols = [list(run.names).index(j) for j in ARM]
+    got = score_fed(feed(runner, run, offset=1.0), run, meta, cols)
+    return {"rms": got["rms"], "delays_ms": got["delays_ms"],
+            "false_alarms": got["false_alarms"], "calibrated": runner.observer.calibrated,
+            "estimate_fraction": got["estimate_fraction"]}
 
 
 def parameter_truth(files, meta, output: str) -> dict:
@@ -139,7 +168,7 @@ def parameter_truth(files, meta, output: str) -> dict:
     parameters (the true arm's base combinations: theta_I + K theta_D)."""
     fitted = merged_model(files)
     prior = merged_model(files[:1])
-    exact = exact_model(meta)
+    exact = exact_model(meta, files[0])
     se = _standard_errors(output)
     out = {}
     for kind, fit, true in (("viscous", fitted.viscous, exact.viscous),
@@ -190,16 +219,18 @@ def main(argv=None) -> int:
     plant = out / "plant.yaml"
     plant.write_text(PLANT)
     _, meta = read_arm_bag(b["score"])
-    results = {"exact": score(b["score"], exact_model(meta)),
-               "urdf": score(b["score"], merged_model([plant]))}
+    results = {"exact": score(b["score"], exact_params(meta, plant)),
+               "urdf": score(b["score"], load_params_files([plant]))}
     for form in ("base", "scale", "none"):
         target = out / f"identified_{form}.yaml"
         _, text, took = run_identify([str(b["fit"]), "--params", str(plant), "--out",
                                       str(target), "--overwrite", "--inertia", form])
-        results[form] = score(b["score"], merged_model([plant, target]))
+        results[form] = score(b["score"], load_params_files([plant, target]))
         results[form]["seconds"] = took
         results[form]["truth"] = parameter_truth([plant, target], meta, text)
         results[form]["summary"] = text.splitlines()[0]
+        results[form]["contacts"] = next((line for line in text.splitlines()
+                                          if line.startswith("windows left out")), "none left out")
     target = out / "payload.yaml"
     _, text, took = run_identify([str(b["grasp"]), "--params", str(plant),
                                   str(out / "identified_base.yaml"), "--out", str(target),
@@ -218,6 +249,16 @@ def _f(x) -> str:
     return "missed" if not np.isfinite(x) else f"{x:.3g}"
 
 
+def _windows(summary: str) -> str:
+    """'1453 (684)' from fto-identify's first line."""
+    try:
+        used = summary.split(" windows of ")[0].rsplit(";", 1)[1].strip()
+        eff = summary.split("(")[1].split(" effective")[0]
+        return f"{used} ({eff})"
+    except IndexError:
+        return "?"
+
+
 def table(r: dict) -> str:
     ex = max(r["exact"]["rms"])
     lines = ["| model | tau_ext RMS in free motion per joint (Nm) | worst / exact's worst | "
@@ -233,14 +274,16 @@ def table(r: dict) -> str:
                      f"{max(s['rms']) / ex:.2f} | {ratio:.2f} | "
                      f"{' / '.join(_f(d) for d in s['delays_ms'])} | {s['false_alarms']} |")
     lines += ["", "| fit | viscous: max rel. error, max abs(z) | Coulomb: max rel. error, max "
-              "abs(z) | base parameters: error RMS / URDF's, median and max abs(z) | seconds |",
-              "|---|---|---|---|---|"]
+              "abs(z) | base parameters: error RMS / URDF's, median and max abs(z) | seconds | "
+              "windows (effective) | contact windows left out |",
+              "|---|---|---|---|---|---|---|"]
     for key in ("base", "scale", "none"):
         t = r[key]["truth"]
         lines.append(f"| {key} | {t['viscous']['max_rel_error']:.2%}, {t['viscous']['max_z']:.1f} "
                      f"| {t['coulomb']['max_rel_error']:.2%}, {t['coulomb']['max_z']:.1f} | "
                      f"{t['base']['rms_error_vs_urdf_error']:.3f}, {t['base']['median_z']:.1f}, "
-                     f"{t['base']['max_z']:.1f} | {r[key]['seconds']:.0f} |")
+                     f"{t['base']['max_z']:.1f} | {r[key]['seconds']:.0f} | "
+                     f"{_windows(r[key]['summary'])} | {r[key]['contacts']} |")
     p = r["payload"]
     lines += ["", f"payload: true {p['true']}; fitted {p['fitted']} ({p['seconds']:.0f} s)"]
     return "\n".join(lines)
