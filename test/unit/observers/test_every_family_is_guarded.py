@@ -32,6 +32,8 @@ NUMPY_PATH = {
     "ekf": "test_ekf.py",
     "track": "test_ekf.py",          # its acquire_track configs, tracker and all
     "joint_kalman": "test_joint_kalman.py",
+    "external_torque": "test_arm_numpy_path.py",
+    "momentum_observer": "test_arm_numpy_path.py",
 }
 
 

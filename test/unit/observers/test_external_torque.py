@@ -1,18 +1,14 @@
 """The windowed momentum estimator (observers/external_torque; docs/external_torque.md): exact
 T after any change without noise, on the actual stamps (jitter of +-10 % of the period costs
 nothing measurable), gaps bridged within the stated bound, longer ones refused (the
-runner's restarts), the compiled kernel and its numpy path alike. ROS-free."""
+runner's restarts). The compiled kernel against its numpy path: test_arm_numpy_path.py.
+ROS-free."""
 from __future__ import annotations
-
-import json
-import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
-from arm_families import ARM7, ARM7_JOINTS, ROOT, feed, kernel_average, observer
+from arm_families import ARM7, ARM7_JOINTS, feed, kernel_average, observer
 from fto_ros.arm import load_model
 from fto_ros.models.arm import ArmSettings, Contact, simulate_arm
 from fto_ros.arm.params import gap_bound
@@ -170,30 +166,3 @@ def test_the_weights_integrate_cubics_exactly_on_any_nodes():
         K = lambda s: s ** 3 * (10 - 15 * s + 6 * s * s)     # noqa
         np.testing.assert_allclose(D, K(u[1:] / T) - K(u[:-1] / T), rtol=0, atol=1e-14)
 
-
-def test_the_numpy_path_gives_the_compiled_estimates(clean, tmp_path):
-    """FTO_ROS_NUMBA=0 runs the kernel as Python over the same arrays: the same estimates
-    (a short window: the Python loops are slow)."""
-    r = clean
-    N = 140
-    data = tmp_path / "in.npz"
-    np.savez(data, t=r.t[900:900 + N], y=r.q_measured[900:900 + N], u=r.tau[900:900 + N])
-    code = ("import sys, json, numpy as np; sys.path.insert(0, 'test/support')\n"
-            "from arm_families import ARM7, ARM7_JOINTS, feed, observer\n"
-            f"d = np.load({str(data)!r})\n"
-            "obs = observer('external_torque', ARM7, joints=ARM7_JOINTS, "
-            "external_torque__window=0.012)\n"
-            "E, V, _ = feed(obs, d['t'], d['y'], d['u'])\n"
-            "print(json.dumps([np.nan_to_num(E, nan=1e300).tolist(), V.tolist()]))\n")
-    out = {}
-    for numba in ("0", "1"):
-        env = dict(os.environ, FTO_ROS_NUMBA=numba)
-        res = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env,
-                             capture_output=True, text=True, timeout=900)
-        assert res.returncode == 0, res.stderr[-2000:]
-        out[numba] = [np.array(a) for a in json.loads(res.stdout.splitlines()[-1])]
-    E0, V0 = out["0"]
-    E1, V1 = out["1"]
-    assert (E1 < 1e299).sum() > 100
-    np.testing.assert_allclose(E0, E1, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(V0, V1, rtol=0, atol=1e-9)
