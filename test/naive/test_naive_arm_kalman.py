@@ -7,7 +7,8 @@ equal sub-steps), the torque of the last sample held:
     a = M(q)^-1 (tau - C(q, v) v - g(q) - b v - f_c tanh(v / w) + d)
     q <- q + h v + h^2/2 a,  v <- v + h a,  d <- d
     P <- F P F' + Q,   F = expm(A h),  A = [[0, I, 0], [0, 0, M^-1], [0, 0, 0]],
-    Q = integral_0^h expm(A s) G S_d G' expm(A s)' ds,  G = [0; 0; I]   (scipy's expm and
+    Q = integral_0^h expm(A s) G S_d G' expm(A s)' ds,  G = [0; 0; I],  S_d = diag(2 sqrt(
+    M_ii(0)))^2 (the default disturbance rate)       (scipy's expm and
     quadrature of the integrand here; the package has the closed forms)
 then S = Pqq + R, K = P H' S^-1, x += K (y - q), P = (I - K H) P (I - K H)' + K R K'.
 Start: x = [y, 0, 0], P = diag(R, 1, 100). M, C, g from Pinocchio (naive_arm.py).
@@ -27,11 +28,10 @@ import naive_support as NS
 FAMILY = "arm_kalman"
 FORMS = ("arm_kalman",)
 TOL = 1e-9
-SD = 30.0 ** 2
 R = 1e-10 + 3.814697265625e-06 ** 2 / 12
 
 
-def _transition(Minv, h, n):
+def _transition(Minv, h, n, sd):
     A = np.zeros((3 * n, 3 * n))
     A[:n, n:2 * n] = np.eye(n)
     A[n:2 * n, 2 * n:] = Minv
@@ -42,7 +42,7 @@ def _transition(Minv, h, n):
     for x, w in zip(nodes, weights):
         s = 0.5 * h * (x + 1)
         E = expm(A * s) @ G
-        Q += 0.5 * h * w * SD * E @ E.T
+        Q += 0.5 * h * w * (E * sd) @ E.T
     return expm(A * h), Q
 
 
@@ -53,6 +53,7 @@ def reference(arm, t, y, tau):
     P = np.diag(np.concatenate([np.full(n, R), np.ones(n), np.full(n, 100.0)]))
     X = [x.copy()]
     H = np.hstack([np.eye(n), np.zeros((n, 2 * n))])
+    sd = (2.0 * np.sqrt(np.diag(arm.M(np.zeros(n))))) ** 2    # the default rate, squared
     for k in range(1, N):
         h = s[k] - s[k - 1]
         m = max(1, int(np.ceil(h / 1.5e-3 - 1e-9)))
@@ -65,7 +66,7 @@ def reference(arm, t, y, tau):
                 - arm.fc * np.tanh(v / arm.width) + d
             a = Minv @ rhs
             x = np.concatenate([q + dt * v + 0.5 * dt * dt * a, v + dt * a, d])
-            F, Q = _transition(Minv, dt, n)
+            F, Q = _transition(Minv, dt, n, sd)
             P = F @ P @ F.T + Q
         S = H @ P @ H.T + R * np.eye(n)
         K = P @ H.T @ np.linalg.inv(S)

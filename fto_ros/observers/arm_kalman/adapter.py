@@ -20,6 +20,9 @@ from ..base import Param
 from . import kernel
 
 P = "arm_kalman."
+#: the default disturbance rate per joint, in Nm/sqrt(s) per sqrt(kg m^2) of the joint's
+#: inertia M_ii at the neutral pose (measured on the Panda-class arm: docs/arm.md)
+RATE_PER_ROOT_INERTIA = 2.0
 
 
 def _per_joint(cfg, name: str, n: int) -> np.ndarray:
@@ -78,10 +81,11 @@ class ArmKalmanFilter(ArmObserver):
               "sample's noise (rad), one value or one per joint", min=0.0),
         Param("resolution", "double_array", [0.0], "the encoder's quantisation step (rad), one "
               "value or one per joint; adds resolution^2 / 12 to the variance", min=0.0),
-        Param("disturbance_rate", "double_array", [30.0], "how fast the disturbance torque d "
+        Param("disturbance_rate", "double_array", [], "how fast the disturbance torque d "
               "(friction the model lacks, model error, contacts) may change: the standard "
               "deviation of its random walk per sqrt(s) (Nm/sqrt(s)), one value or one per "
-              "joint", gt=0.0),
+              "joint; empty: RATE_PER_ROOT_INERTIA sqrt(M_ii) at the neutral pose "
+              "(docs/arm.md, Tuning)", gt=0.0),
         Param("acceleration_noise", "double_array", [0.0], "a white acceleration beside d "
               "(rad/s^2/sqrt(s)), one value or one per joint (0: none)", min=0.0),
         Param("initial_velocity_std", "double", 1.0, "the (re)start's velocity uncertainty "
@@ -101,7 +105,9 @@ class ArmKalmanFilter(ArmObserver):
         if np.any(self.variance <= 0):
             raise ConfigError(P + "encoder_noise", "encoder_noise and resolution are both 0 for "
                               "a joint: the filter needs the measurement's variance")
-        self.sd = _per_joint(cfg, "disturbance_rate", n) ** 2
+        diag = np.diag(self.model.mass_matrix(np.zeros(n)))
+        self.sd = (_per_joint(cfg, "disturbance_rate", n) if len(cfg["disturbance_rate"]) else
+                   RATE_PER_ROOT_INERTIA * np.sqrt(diag)) ** 2
         self.sa = _per_joint(cfg, "acceleration_noise", n) ** 2
         self._max_step = float(cfg["max_step"])
         if self._max_step < h:
@@ -110,7 +116,6 @@ class ArmKalmanFilter(ArmObserver):
         p0 = np.concatenate([np.full(n, cfg["initial_velocity_std"] ** 2),
                              np.full(n, cfg["initial_disturbance_std"] ** 2)])
         self._p0v = np.concatenate([np.zeros(n), p0])
-        diag = np.diag(self.model.mass_matrix(np.zeros(n)))
         rowsum = np.linalg.norm(self.model.mass_matrix(np.zeros(n)), axis=1)
         gn, corr = np.empty(n), 0.0
         for i in range(n):
