@@ -82,7 +82,7 @@ def _acceleration(c, ic, q, v, d, tau, pas):
     n = ic[I_N]
     rows = _rows(c, ic)
     M = dyn.mass_matrix(rows, n, q, pas)
-    bias = dyn.inverse_dynamics(rows, n, q, pas, v, np.zeros(n), ic[I_MEANING] != NO_GRAVITY)
+    bias = dyn.inverse_dynamics(rows, n, q, pas, v, np.zeros(n), True)
     rhs = np.empty(n)
     for i in range(n):
         rhs[i] = tau[i] - bias[i] - c[ic[I_B] + i] * v[i] \

@@ -32,6 +32,7 @@ NUMPY_PATH = {
     "ekf": "test_ekf.py",
     "track": "test_ekf.py",          # its acquire_track configs, tracker and all
     "joint_kalman": "test_joint_kalman.py",
+    "arm_kalman": "test_arm_kalman.py",
 }
 
 
