@@ -51,9 +51,6 @@ sys.path.insert(0, str(ROOT))
 
 from fto_ros.cli.arm_bag import read_arm_bag  # noqa: E402
 from fto_ros.cli.simulate_arm import main as simulate_main  # noqa: E402
-from fto_ros.arm.collision import CollisionDetector  # noqa: E402
-from fto_ros.runner.torque_loop import TorqueLoop  # noqa: E402
-from fto_ros.runner.torque_settings import build  # noqa: E402
 
 URDF = ROOT / "urdf" / "panda_gripper.urdf"
 ARM = [f"panda_joint{i}" for i in range(1, 8)]
@@ -133,7 +130,10 @@ def _detections(event_times, windows, calibrated_from: float):
 def run_torque_loop(run, grid: bool = False, params=None):
     """Feed every received message to a TorqueLoop (the node's path); returns (window
     estimates, momentum estimates: (N, 7), NaN where none; detection times (actual time of
-    the sample); the loop)."""
+    the sample); the loop). The TorqueLoop was removed on integ2 (the arm families run on the
+    runner now): imported here, so the rest of this module stays importable."""
+    from fto_ros.runner.torque_loop import TorqueLoop
+    from fto_ros.runner.torque_settings import build
     loop = TorqueLoop(build(dict(TORQUE_PARAMS, **(params or {}))))
     c = arm_columns(run)
     N = run.t.size
@@ -160,6 +160,7 @@ def run_torque_loop(run, grid: bool = False, params=None):
 
 def _gmo_detections(run, G, model):
     """The momentum observer's detection times under the window's rule (module doc)."""
+    from fto_ros.arm.collision import CollisionDetector
     det = CollisionDetector(G.shape[1], rate=RATE, false_alarms_per_hour=1e-2,
                             calibration=GMO_CALIBRATION[1] - GMO_CALIBRATION[0])
     c = arm_columns(run)

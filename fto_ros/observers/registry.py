@@ -12,6 +12,7 @@ from __future__ import annotations
 from typing import Any, Mapping
 
 from ..core.errors import ConfigError, short
+from .arm_kalman import ArmKalmanFilter
 from .base import Observer
 from .ekf import ExtendedKalmanFilter
 from .external_torque import ExternalTorqueObserver
@@ -29,7 +30,7 @@ from .track import TrackObserver
 REGISTRY: dict[str, type[Observer]] = {cls.TYPE: cls for cls in (
     NewtonInversionObserver, SingleDelayObserver, PrescribedTimeObserver, LuenbergerObserver,
     HosmObserver, GlobalNormObserver, HighGainObserver, ExtendedKalmanFilter, JointKalmanFilter,
-    TrackObserver, ExternalTorqueObserver, MomentumObserverFamily)}
+    TrackObserver, ExternalTorqueObserver, MomentumObserverFamily, ArmKalmanFilter)}
 
 
 def observer_class(type_name: str) -> type[Observer]:

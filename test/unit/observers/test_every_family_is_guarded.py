@@ -34,6 +34,7 @@ NUMPY_PATH = {
     "joint_kalman": "test_joint_kalman.py",
     "external_torque": "test_arm_numpy_path.py",
     "momentum_observer": "test_arm_numpy_path.py",
+    "arm_kalman": "test_arm_kalman.py",
 }
 
 
