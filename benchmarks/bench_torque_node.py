@@ -230,7 +230,7 @@ def _measure(duration, node, echo_p, ex, last, count_file, me, env) -> dict:
 
 
 def micro(n: int = 3000, family: str = "external_torque") -> None:
-    from benchmarks.arm_runs import arm_runner, feed, rows as block_rows
+    from benchmarks.arm_runs import arm_runner, rows as block_rows
     from fto_ros.cli.arm_bag import read_arm_bag
     run, _ = read_arm_bag(BAG)
     runner = arm_runner(family, JOINTS, urdf=URDF)
