@@ -1,5 +1,5 @@
 """The per-joint mode's error metrics: each joint's published position, velocity and effort
-(runner/joints.py's OutputPlan) against a ground truth JointState mapped by joint name, as a
+(the per-joint plan's ``estimated_joint_states``, runner/sources/plan.py) against a ground truth JointState mapped by joint name, as a
 user records it (``topics.true_state`` of type sensor_msgs/JointState: its position,
 velocity and effort of each joint, in any order), per joint and over all joints.
 
@@ -13,7 +13,6 @@ from typing import Any
 
 import numpy as np
 
-from ..runner.joints import OutputPlan
 from . import metrics as M
 
 FIELDS = ("position", "velocity", "effort")
@@ -37,30 +36,36 @@ def _truth_columns(msgs, joints) -> dict[str, np.ndarray]:
     return out
 
 
-def joint_errors(runner, run, truth, settle: float) -> tuple[dict[str, Any] | None, str | None]:
+def joint_errors(plan, run, truth, settle: float) -> tuple[dict[str, Any] | None, str | None]:
     """({"per_joint": {joint: error_stats of its fields}, "all_joints": error_stats of every
-    joint's errors together, ...}, None), or (None, why there are none)."""
+    joint's errors together, ...}, None), or (None, why there are none); ``plan`` the
+    per-joint source's output plan."""
     t_truth, msgs = truth
     if not len(msgs):
         return None, "no ground truth: the truth topic has no messages"
-    plan = OutputPlan(runner)
-    cols = _truth_columns(msgs, plan.names)
-    pos, vel, eff = plan.fields(run.est_x, run.est_w)
-    est = {"position": pos, "velocity": vel, "effort": eff}
-    fields = [f for f in FIELDS if est[f].ndim == 2 and np.isfinite(cols[f]).any()]
+    spec = next(s for s in plan.specs if s.topic == "estimated_joint_states")
+    names = list(spec.labels)
+    cols = _truth_columns(msgs, names)
+    x, w = run.est_xj, run.est_w
+    est = {}
+    for f, field in zip(FIELDS, spec.fields):     # (k, J) per field the plan fills
+        if field is not None:
+            src, c = field
+            est[f] = {"x": x, "w": w}[src][:, spec.rows, c]
+    fields = [f for f in FIELDS if f in est and np.isfinite(cols[f]).any()]
     if not fields or not run.est_t.size:
         return None, "no estimate and truth field in common"
     per_joint: dict[str, Any] = {}
     all_err, all_settled = [], []
     matched = unmatched = 0
-    for j, name in enumerate(plan.names):
+    for j, name in enumerate(names):
         rows = np.flatnonzero(run.est_ok[:, j])
         truth_j = np.column_stack([cols[f][:, j] for f in fields])
         good = np.all(np.isfinite(truth_j), axis=1)
         mask, at = M.match_truth(run.est_t[rows], t_truth[good], truth_j[good])
         rows = rows[mask]
         err = at[mask] - np.column_stack([est[f][rows, j] for f in fields])
-        settled = run.est_conv[rows, j, 0] >= settle - 1e-9
+        settled = run.est_cj[rows, j, 0] >= settle - 1e-9
         per_joint[name] = M.error_stats(err, fields, settled)
         per_joint[name]["matched_samples"] = int(rows.size)
         matched += int(rows.size)
