@@ -33,7 +33,7 @@ import pytest
 import yaml
 
 from fto_ros.bag import BagReader, BagWriter
-from fto_ros.bag.cdr import Encoders, decode_float_arrays
+from fto_ros.core.cdr import FloatDecoder
 from fto_ros.bag.mcap_scan import NotFast, read_raw
 from fto_ros.core.errors import ConfigError
 from fto_ros.models import dc_motor, simulate
@@ -61,7 +61,7 @@ METRIC_FIELDS = {
     "settle_time_rule", "tolerance", "convergence_time_s", "convergence_time_definition",
     "observer_start_s", "truth_topic", "errors", "errors_note", "update_time_us",
     "observer_update_time_us", "replay_speed_x_realtime", "replay_speed_definition", "timing_s",
-    "reader", "serializer_fallbacks", "diagnostics_levels", "final_status",
+    "reader", "decoded_by_rosbags", "diagnostics_levels", "final_status",
     "observer_diagnostics",
 }
 
@@ -232,7 +232,7 @@ def test_metrics_json_fields_and_values(run, sim):
     t = m["timing_s"]
     assert t["replay_total"] >= t["runner"] > 0
     assert m["replay_speed_x_realtime"] == pytest.approx(m["bag_duration_s"] / t["replay_total"])
-    assert m["reader"] == "MCAP fast path" and m["serializer_fallbacks"] == []
+    assert m["reader"] == "MCAP fast path" and m["decoded_by_rosbags"] == 0
     assert m["final_status"]["message"].startswith("converged")
     assert "closed-loop poles" in m["observer_diagnostics"]
 
@@ -371,7 +371,9 @@ def test_fast_reader_matches_bagreader(bad_bag):
             ref = [(t, msg) for _, t, msg in b.messages([topic])]
             t_fast, payloads = fast[topic]
             assert t_fast.tolist() == [t for t, _ in ref]
-            vals = decode_float_arrays(payloads, ts)
+            dec = FloatDecoder()                     # mixed lengths: message by message
+            vals = [dec.decode(p) for p in payloads]
+            assert len(vals) == len(ref)
             for v, (_, msg) in zip(vals, ref):
                 np.testing.assert_array_equal(np.asarray(v, dtype=float), msg.data)
 
@@ -413,25 +415,6 @@ def test_all_samples_rejected(sim, tmp_path):
     assert m["errors"] is None and "no accepted samples" in m["errors_note"]
     assert m["final_status"]["level"] == "WARN"
     assert (tmp_path / "out" / "replay.png").stat().st_size > 0
-
-
-def test_float_array_codec_matches_rosbags():
-    from fto_ros.bag.reader import jazzy_typestore
-    ts = jazzy_typestore()
-    enc = Encoders(ts)
-    for n in range(5):
-        for labels in (None, [f"x{i}" for i in range(n)], ["a"] * n):
-            x = np.linspace(-1.0, 2.0, n)
-            raw = enc.float_array(n, labels)(x)
-            assert raw == enc._rosbags_f64(x, labels)
-            assert decode_float_arrays([raw], ts) == [x.tolist()]
-            assert decode_float_arrays([raw, raw], ts) == [x.tolist()] * 2
-    assert enc.fallbacks == []
-    for frame in ("", "base_link", "odom_1"):
-        js = enc.joint_state(["a", "joint_12"], (2, 0, 2), frame)
-        assert js(5, 7, [1.0, 2.0], [], [3.0, 4.0]) == enc._rosbags_js(
-            ["a", "joint_12"], 5, 7, [1.0, 2.0], [], [3.0, 4.0], frame_id=frame)
-    assert enc.fallbacks == []
 
 
 # ------------------------------------------------------------------ metrics

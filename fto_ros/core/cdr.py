@@ -164,7 +164,8 @@ def float_block(n: int, labels=None) -> Callable[[np.ndarray], np.ndarray]:
     p = prefix.size
 
     def encode(x) -> np.ndarray:
-        x = np.ascontiguousarray(x, dtype=_F8).reshape(-1, n)
+        x = np.ascontiguousarray(x, dtype=_F8)
+        x = x.reshape(len(x) if x.ndim > 1 else 1, n)
         out = np.empty((len(x), p + 8 * n), np.uint8)
         out[:, :p] = prefix
         out[:, p:] = x.view(np.uint8).reshape(len(x), 8 * n)
