@@ -56,7 +56,10 @@ setup(
             'fto-play = fto_ros.nodes.start:player',
             'fto-report = fto_ros.cli.report:main',
             'fto-design = fto_ros.cli.design:main',
+            'fto-tune = fto_ros.cli.tune:main',
+            'fto-identify = fto_ros.cli.identify:main',
             'fto-sweep = fto_ros.sweep.cli:main',
+            'fto-warm-cache = fto_ros.cli.warm_cache:main',
         ],
     },
 )

@@ -19,7 +19,7 @@ Usage::
                                                      # seeds, jump sizes and times
     python benchmarks/bench_track.py --long 600      # also a 600 s noisy bag (false alarms)
 
-The test suite (test/test_track.py) asserts the same targets with these functions.
+The test suite (test/unit/observers/test_track.py) asserts the same targets with these functions.
 """
 from __future__ import annotations
 

@@ -29,7 +29,9 @@ def generate_launch_description():
                      'luenberger',
                      'single_delay',
                      'ekf',
-                     'acquire_track'],
+                     'acquire_track',
+                     'joint_kalman',
+                     'track_joint_kalman'],
             description='the tuning: config/arm7_<observer>.yaml'),
         IncludeLaunchDescription(
             PythonLaunchDescriptionSource(

@@ -3,11 +3,12 @@
     ros2 launch fto_ros arm7_external_torque.launch.py [urdf:=FILE] [namespace:=NS]
         [use_sim_time:=true] [autostart:=false]
 
-The node (executable external_torque_node, a lifecycle node) reads the arm's JointState on
-joint_states (position = encoders, effort = commanded torque) and publishes external_torque,
-~/collision and /diagnostics, with the defaults of every other parameter (the URDF's seven
-joints, T = 60 ms, 1e-2 false alarms per hour, 2 s calibration). urdf defaults to the
-installed share/fto_ros/urdf/arm7.urdf. Drive it with a recorded arm bag:
+The node (the managed observer node, executable managed_observer_node, with observer.type
+external_torque) reads the arm's JointState on joint_states (position = encoders, effort =
+commanded torque) and publishes ~/external_torque, ~/contact, ~/collision and /diagnostics,
+with the defaults of every other parameter (the URDF's seven joints, T = 60 ms, 1e-2 false
+alarms per hour, 2 s calibration). urdf defaults to the installed
+share/fto_ros/urdf/arm7.urdf. Drive it with a recorded arm bag:
 fto-play bags/arm7_contact_link6 (topic /arm/joint_states: namespace:=arm). Topics and parameters: docs/ros_interface.md, docs/external_torque.md.
 """
 from launch import LaunchDescription
@@ -34,9 +35,10 @@ def generate_launch_description():
             'autostart', default_value='true', choices=BOOL,
             description='configure and activate at start (false: leave it to a manager)'),
         LifecycleNode(
-            package='fto_ros', executable='external_torque_node', name='external_torque_node',
+            package='fto_ros', executable='managed_observer_node', name='external_torque_node',
             namespace=LaunchConfiguration('namespace'),
-            parameters=[{'plant.urdf': LaunchConfiguration('urdf'),
+            parameters=[{'observer.type': 'external_torque',
+                         'plant.urdf': LaunchConfiguration('urdf'),
                          'use_sim_time': LaunchConfiguration('use_sim_time'),
                          'autostart': LaunchConfiguration('autostart')}],
             output='screen'),

@@ -29,7 +29,9 @@ def generate_launch_description():
                      'global_norm',
                      'high_gain',
                      'ekf',
-                     'acquire_track'],
+                     'acquire_track',
+                     'joint_kalman',
+                     'track_joint_kalman'],
             description='the tuning: config/msd_<observer>.yaml'),
         IncludeLaunchDescription(
             PythonLaunchDescriptionSource(

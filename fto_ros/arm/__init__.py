@@ -11,14 +11,15 @@ torques with a guaranteed time, collision detection.
   inverse and forward dynamics, momentum, Jacobians, passive and mimic joints, payloads;
 - :mod:`.pin_reference`: the same terms from Pinocchio, the reference the tests hold the
   compiled ones to;
-- :mod:`.steps`: the estimators' per-sample steps, pure functions over flat float64 arrays
-  (the robust exact differentiator's velocity, the windowed momentum estimator, the
-  generalized-momentum observer, finite differences);
-- :mod:`.steps_compiled`: the window estimator's steps compiled (numba), used when numba is on;
-- :mod:`.external_torque`: the adapters that own a design, restart it and call the model;
-- :mod:`.collision`: thresholds from a false-alarm bound, detection with hysteresis.
+- :mod:`.window`: the windowed momentum estimator's compiled numerics on the actual sample
+  instants (the kernel's quadrature weights on any node spacing, centred velocities, the
+  encoder-noise residual);
+- :mod:`.detect`: contact and collision levels per joint and the calibration against the
+  encoder's noise, compiled, inside an estimator's state;
+- :mod:`.collision`: the threshold of a false-alarm bound, the guaranteed detection time.
 
-docs/external_torque.md derives the estimator, its guaranteed time and its noise gain.
+The estimators themselves are observer families run by the runner (observers/
+external_torque, observers/momentum_observer); docs/external_torque.md derives them.
 """
 from .model import RigidBodyModel, load_model
 

@@ -451,3 +451,23 @@ def jacobian(rows, n, q, passive, body, origin):
             J[5, ci] += m * w2
         i = int(rows[i, PARENT])
     return J
+
+
+@jit
+def frame_pose(rows, n, q, passive, body, axes, origin):
+    """(R, p): the axes (3 x 3, columns in world axes) and the origin (world) of a frame
+    whose axes and origin in body ``body``'s frame are ``axes``, ``origin`` (-1: the root)."""
+    qf, vf = full_coordinates(rows, q, passive, np.zeros(n))
+    Rw, pw, S, vel, Iw = _bodies(rows, qf, vf)
+    R, p = np.empty((3, 3)), np.empty(3)
+    if body < 0:
+        R[:, :] = axes
+        p[:] = origin
+        return R, p
+    for k in range(3):
+        for j in range(3):
+            R[k, j] = Rw[body, k, 0] * axes[0, j] + Rw[body, k, 1] * axes[1, j] + \
+                Rw[body, k, 2] * axes[2, j]
+        p[k] = pw[body, k] + Rw[body, k, 0] * origin[0] + Rw[body, k, 1] * origin[1] + \
+            Rw[body, k, 2] * origin[2]
+    return R, p

@@ -128,7 +128,7 @@ class RigidBodyModel:
     def __init__(self, robot: Urdf, joints: Sequence[str] | None,
                  locked: Mapping[str, float] | None = None, viscous=None, coulomb=None,
                  friction_width: float = DEFAULT_FRICTION_WIDTH, armature=None,
-                 joints_param: str = "plant.joints", source_param: str = "robot_description"):
+                 joints_param: str = "joints", source_param: str = "robot_description"):
         joints, passive, default = _roles(robot, joints, locked, joints_param)
         self.robot = robot
         self.tree = tree = Tree(robot, joints, passive)
@@ -271,14 +271,22 @@ class RigidBodyModel:
         return dyn.jacobian(self.tree.rows, self.n, self._vec(q, "positions"),
                             self._passive(passive), body, origin)
 
-    def wrench(self, link: str, q, tau_ext, force_only: bool = False, passive=None) -> np.ndarray:
+    def frame_pose(self, link: str, q, passive=None) -> tuple[np.ndarray, np.ndarray]:
+        """(R, p): ``link``'s frame axes (columns, world axes) and origin (world) at q."""
+        body, axes, origin = self._frame(link, "wrench.frame")
+        return dyn.frame_pose(self.tree.rows, self.n, self._vec(q, "positions"),
+                              self._passive(passive), body, np.ascontiguousarray(axes), origin)
+
+    def wrench(self, link: str, q, tau_ext, damping: float = 0.0, passive=None) -> np.ndarray:
         """The wrench (f; m) at the origin of ``link``'s frame, world axes, whose joint torques
-        J^T (f; m) best match ``tau_ext`` (least squares; with ``force_only`` a pure force,
-        m = 0): the contact wrench a tau_ext estimate implies, if the contact is on that link."""
+        J^T (f; m) match ``tau_ext`` best: damped least squares, w = (J J^T + damping^2 I)^-1
+        J tau_ext (damping 0: the minimum-norm least-squares solution): the contact wrench a
+        tau_ext estimate implies, if the contact is on that link."""
         J = self.jacobian(link, q, passive)
-        A = J[:3].T if force_only else J.T
-        w = np.linalg.lstsq(A, np.asarray(tau_ext, dtype=float), rcond=1e-9)[0]
-        return np.concatenate([w, np.zeros(3)]) if force_only else w
+        tau = np.asarray(tau_ext, dtype=float)
+        if damping > 0:
+            return np.linalg.solve(J @ J.T + damping ** 2 * np.eye(6), J @ tau)
+        return np.linalg.lstsq(J.T, tau, rcond=1e-9)[0]
 
     def set_payload(self, frame: str, mass: float, com=(0.0, 0.0, 0.0),
                     inertia=((0.0, 0.0, 0.0),) * 3) -> None:
@@ -286,17 +294,27 @@ class RigidBodyModel:
         used from the next call on; nothing else is rebuilt."""
         self.tree.set_payload(frame, mass, com, inertia)
 
+    def correct_inertia(self, scale=None, delta=None) -> None:
+        """Identified inertial corrections (``plant.inertia_scale``: {link: factor},
+        ``plant.inertia_delta``: {link: 10 values}; :meth:`.tree.Tree.correct_inertia`)."""
+        self.tree.correct_inertia(scale, delta)
+
 
 def load_model(joints: Sequence[str] | None, *, urdf: str | os.PathLike | None = None,
                robot_description: str | None = None,
                locked_joints: Mapping[str, float] | None = None,
                viscous_friction=None, coulomb_friction=None,
-               friction_width: float = DEFAULT_FRICTION_WIDTH, armature=None) -> RigidBodyModel:
+               friction_width: float = DEFAULT_FRICTION_WIDTH, armature=None,
+               inertia_scale=None, inertia_delta=None) -> RigidBodyModel:
     """A :class:`RigidBodyModel` from a URDF file (``plant.urdf``) or string
-    (``robot_description``), the joints to use (``plant.joints``; None or empty: the arm's
+    (``robot_description``), the joints to use (``joints``; None or empty: the arm's
     chain) and the default positions of passive joints (``plant.locked_joints``); friction
-    and armature per listed joint (None: the URDF's)."""
+    and armature per listed joint (None: the URDF's); identified inertial corrections
+    (:meth:`RigidBodyModel.correct_inertia`)."""
     text, param = read_source(urdf, robot_description)
     robot = parse(text, param)
-    return RigidBodyModel(robot, joints, locked_joints or {}, viscous_friction,
-                          coulomb_friction, friction_width, armature, source_param=param)
+    model = RigidBodyModel(robot, joints, locked_joints or {}, viscous_friction,
+                           coulomb_friction, friction_width, armature, source_param=param)
+    if inertia_scale or inertia_delta:
+        model.correct_inertia(inertia_scale, inertia_delta)
+    return model

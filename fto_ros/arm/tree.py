@@ -42,6 +42,18 @@ def inertia_params(mass: float, com, inertia_com, R=np.eye(3), p=np.zeros(3)) ->
     return np.array([mass, *(mass * c), I[0, 0], I[1, 1], I[2, 2], I[1, 2], I[0, 2], I[0, 1]])
 
 
+def shift_params(params, R=np.eye(3), p=np.zeros(3)) -> np.ndarray:
+    """The 10 inertia parameters (m, h, I about the origin, :func:`inertia_params`' order)
+    of a frame, re-expressed about the origin and in the axes of a frame in which it sits at
+    (R, p); linear in ``params`` (so a correction, even with a negative mass, maps too)."""
+    m, h = params[0], R @ np.asarray(params[1:4], dtype=float)
+    xx, yy, zz, yz, xz, xy = params[4:10]
+    I = R @ np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]]) @ R.T + \
+        m * (p @ p * np.eye(3) - np.outer(p, p)) + 2 * (p @ h) * np.eye(3) - np.outer(p, h) - \
+        np.outer(h, p)
+    return np.array([m, *(h + m * p), I[0, 0], I[1, 1], I[2, 2], I[1, 2], I[0, 2], I[0, 1]])
+
+
 def _refuse(param: str):
     def fail(message: str):
         raise ConfigError(param, message)
@@ -94,6 +106,10 @@ class Tree:
         rows[:, INERTIA:INERTIA + 10] = self.base
         self.rows = rows
         self.payloads: dict[str, np.ndarray] = {}
+        #: the URDF's inertias per body, before any correction (:meth:`correct_inertia`)
+        self.urdf_base = self.base.copy()
+        self.inertia_scale: dict[str, float] = {}
+        self.inertia_delta: dict[str, np.ndarray] = {}
 
     def row_of(self, joint: str) -> int:
         return self.names.index(joint)
@@ -106,6 +122,52 @@ class Tree:
             if p >= 0:
                 m[p] += m[i]
         return m
+
+    def link_params(self, link: str) -> tuple[int, np.ndarray]:
+        """(body row, the link's own 10 inertia parameters in that body) of a link with an
+        ``<inertial>`` that moves (row -1 and zeros otherwise)."""
+        inertial = self.robot.links.get(link)
+        b, R, p = self.frames.get(link, (-1, None, None))
+        if inertial is None or b < 0:
+            return -1, np.zeros(10)
+        return b, inertia_params(inertial.mass, inertial.com, inertial.inertia, R, p)
+
+    def correct_inertia(self, scale=None, delta=None) -> None:
+        """The identified corrections (fto-identify): ``scale`` {link: factor} multiplies a
+        link's mass, first moment and inertia (``plant.inertia_scale``); ``delta`` {link: 10
+        values} adds to a link's parameters (m, m c, inertia about its origin: xx, yy, zz, yz,
+        xz, xy, link axes; ``plant.inertia_delta``). Replaces earlier corrections; payloads
+        stay."""
+        base = self.urdf_base.copy()
+        for link, factor in (scale or {}).items():
+            b, params = self.link_params(link)
+            if b < 0:
+                raise ConfigError("plant.inertia_scale.links", f"{short(link)} is no link with "
+                                                              f"an <inertial> that moves")
+            f = float(factor)
+            if not (math.isfinite(f) and f > 0):
+                raise ConfigError("plant.inertia_scale.factors", f"{link}: must be a finite "
+                                                                f"number > 0, got {short(factor)}")
+            base[b] += (f - 1.0) * params
+        for link, values in (delta or {}).items():
+            b, R, p = self.frames.get(link, (-1, None, None)) if isinstance(link, str) else \
+                (-1, None, None)
+            d = np.asarray(values, dtype=float).reshape(-1)
+            if b < 0:
+                raise ConfigError("plant.inertia_delta.links", f"{short(link)} is no link that "
+                                                              f"moves")
+            if d.size != 10 or not np.all(np.isfinite(d)):
+                raise ConfigError("plant.inertia_delta.values", f"{link}: 10 finite values")
+            base[b] += shift_params(d, R, p)
+        if np.any(base[:, 0] < 0):
+            raise ConfigError("plant.inertia_scale.factors", "the corrections make a body's "
+                                                            "mass negative")
+        self.base = base
+        #: the corrections applied (the prior of a new identification)
+        self.inertia_scale = {str(k): float(v) for k, v in (scale or {}).items()}
+        self.inertia_delta = {str(k): np.asarray(v, dtype=float).reshape(10).copy()
+                              for k, v in (delta or {}).items()}
+        self._refresh()
 
     # -- payloads ----------------------------------------------------------------------------
     def set_payload(self, frame: str, mass: float, com=(0.0, 0.0, 0.0),
@@ -138,6 +200,9 @@ class Tree:
         self.payloads.pop(frame, None)
         if m > 0:
             self.payloads[frame] = inertia_params(m, c, I, R, p)
+        self._refresh()
+
+    def _refresh(self) -> None:
         total = self.base.copy()
         for name, params in self.payloads.items():
             if self.frames[name][0] >= 0:

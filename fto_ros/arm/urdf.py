@@ -11,15 +11,17 @@ Refusals are one ``ConfigError`` line naming the source's parameter (``plant.urd
 - the structure: names twice, a joint whose parent or child link does not exist, a link
   that is the child of two joints, not exactly one root, a cycle;
 - the physics (issue 28 item 4): a mass that is not a finite number > 0 (urdfdom and so
-  Pinocchio drop a NaN or inf mass silently: the XML is read here), every mass zero, an
+  Pinocchio drop a NaN or inf mass silently: the XML is read here) -- a mass of 0 with an
+  inertia tensor of zeros is a massless frame (a link with no ``<inertial>``), a mass of 0
+  with any other tensor is refused --, every mass zero, an
   inertia tensor that is not finite, not positive definite, or breaks the triangle
   inequality (each principal moment at most the sum of the other two, within
   :data:`TRIANGLE_TOLERANCE` of the largest); a zero or non-finite joint axis; damping,
   friction or armature that is not a finite number >= 0; an origin or limit that is not
   numbers;
-- joints: a floating or planar joint (an arm's joints are revolute, continuous, prismatic
-  or fixed), a ``<mimic>`` of a joint that does not exist or does not move, of itself, or a
-  cycle of mimics.
+- joints: an unknown type, a ``<mimic>`` of a joint that does not exist or does not move,
+  of itself, or a cycle of mimics. A floating or planar joint (a mobile base under the arm)
+  is read as fixed at its neutral pose (its origin), and :attr:`Urdf.notes` says so.
 
 The ``armature`` attribute of ``<dynamics>`` (a motor's rotor inertia through its gear) is
 ours: urdfdom ignores it.
@@ -80,6 +82,8 @@ class Urdf:
     root: str
     links: dict
     joints: tuple
+    #: what was read otherwise than written (a floating or planar joint taken as fixed)
+    notes: tuple = ()
 
     def joint(self, name: str) -> Joint | None:
         return next((j for j in self.joints if j.name == name), None)
@@ -114,6 +118,7 @@ class _Reader:
 
     def __init__(self, param: str):
         self.param = param
+        self.notes: list[str] = []
 
     def fail(self, message: str):
         raise ConfigError(self.param, message)
@@ -178,7 +183,7 @@ class _Reader:
             mass = float(mass_el.get("value"))
         except ValueError:
             mass = math.nan
-        if not (math.isfinite(mass) and mass > 0):
+        if not (math.isfinite(mass) and mass >= 0):
             self.fail(f"{where}: the mass must be a finite number > 0, got "
                       f"{short(mass_el.get('value'))}")
         tensor = el.find("inertia")
@@ -195,6 +200,11 @@ class _Reader:
                 self.fail(f"{where}: the inertia {a} must be finite, got {short(text)}")
         I = np.array([[v["ixx"], v["ixy"], v["ixz"]], [v["ixy"], v["iyy"], v["iyz"]],
                       [v["ixz"], v["iyz"], v["izz"]]])
+        if mass == 0:                    # a massless frame, or refused
+            if np.any(I != 0):
+                self.fail(f"{where}: the mass must be a finite number > 0, got 0 with a "
+                          f"non-zero inertia tensor (a massless frame has every ixx..izz 0)")
+            return None
         check_inertia(I, lambda msg: self.fail(f"{where}: {msg}"))
         return Inertial(mass, com, R @ I @ R.T)
 
@@ -203,8 +213,9 @@ class _Reader:
         where = f"joint {short(name)}"
         kind = el.get("type")
         if kind in ("floating", "planar"):
-            self.fail(f"{where} is {kind}: an arm's joints are revolute, continuous, prismatic "
-                      f"or fixed")
+            self.notes.append(f"{where} is {kind}: read as fixed at its neutral pose (a mobile "
+                              f"base under the arm does not move in this model)")
+            kind = "fixed"
         if kind not in MOVABLE + ("fixed",):
             self.fail(f"{where}: unknown type {short(kind)}")
         links = []
@@ -307,7 +318,7 @@ def parse(text: str, param: str) -> Urdf:
         read.fail(f"not a tree: joint(s) {short(lost)} are on a cycle")
     if all(i is None for i in links.values()):
         read.fail("every link's mass is zero (no <inertial>): the arm has no dynamics")
-    robot = Urdf(root.get("name") or "", roots[0], links, tuple(order))
+    robot = Urdf(root.get("name") or "", roots[0], links, tuple(order), tuple(read.notes))
     _check_mimics(robot, read)
     return robot
 

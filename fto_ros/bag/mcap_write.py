@@ -5,7 +5,7 @@ The file is laid out record for record as rosbags' writer lays it out for the sa
 messages in the same order (header, schema and channel records in the chunk being
 filled, chunks closed past 1 MiB, a message index per channel after each chunk, the
 summary section with schemas, channels, chunk indexes, the rosbag2 metadata record,
-statistics and summary offsets): test/test_bag_io.py checks that both files are equal
+statistics and summary offsets): test/unit/bag/test_bag_fast_paths.py checks that both files are equal
 byte for byte, and metadata.yaml too, given rosbags' YAML emitter (ruamel.yaml).  By
 default three things differ: the library named in the MCAP header (fto_ros's),
 ``ros_distro`` ("jazzy") and the YAML emitter: libyaml's (0.4 ms instead of 15 ms per

@@ -15,6 +15,7 @@ on a ROS 2 Jazzy install.
 """
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import shutil
@@ -24,7 +25,8 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 import numpy as np
 
 from .. import __version__
-from ..core.output_dir import create_output
+from ..core.errors import short
+from ..core.output_dir import abandon, create_output
 from .mcap_write import McapBag
 from .reader import BagError, shared_typestore
 
@@ -130,14 +132,18 @@ class BagWriter:
         return self
 
     def close(self) -> None:
-        """Finish the bag: write the MCAP summary and metadata.yaml."""
+        """Finish the bag: write the MCAP summary and metadata.yaml.  A bag that cannot be
+        finished (a full disk) is removed: no half-written bag looks like a bag."""
         if self._writer is None:
             return
         writer, self._writer = self._writer, None
         try:
             writer.close()
         except Exception as err:
-            raise BagError(f"{self.path}: cannot finish bag: {err}") from err
+            with contextlib.suppress(Exception):
+                writer.abort()
+            what = abandon(self.path, "bag", short(err))
+            raise BagError(f"{self.path}: cannot finish bag: {short(err)}; {what}") from err
 
     def abort(self) -> None:
         """Stop writing and delete the half-written bag directory."""

@@ -10,6 +10,11 @@ and its start-up diagnostics: noise gain, conditioning, gains, the paper's check
 
 Exit codes: 0 done, 2 bad parameters or arguments (a plant outside the chosen observer's
 class included), 1 any other failure.  ``FTO_DEBUG=1`` shows an unexpected traceback.
+
+A per-joint plant (``joints`` with constants ``'name=[v1, ..., vJ]'``, config/arm7_plant.yaml)
+is designed joint by joint (cli/design_joints.py): the first joint in full, then a joint
+table of whatever differs (constants, derived matrices, figures, the tuning files' design
+figures).
 """
 from __future__ import annotations
 
@@ -26,7 +31,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog=PROG, description="Show what the plant block of the params files derives for "
         "every observer type (which apply, the derived matrices and forms, the design figures "
-        "of each tuning file), without running anything.")
+        "of each tuning file), without running anything; for a per-joint plant ('joints', "
+        "constants 'name=[v1, ..., vJ]'), per joint (the joint table).")
     p.add_argument("params", nargs="+", metavar="PARAMS",
                    help="params files: the plant file (and any shared settings) first, then "
                         "tuning files (files with observer.type), each designed on its own")
@@ -60,6 +66,10 @@ def design(paths: list[Path], overrides: dict, node_name: str | None, out,
     base = load_params_files(shared, node_name, overrides)
     if not any(k.startswith("plant.") for k in base):
         raise ConfigError("plant.states", f"no plant block in {', '.join(map(str, shared))}")
+    joints = base.get("joints") or []
+    if isinstance(joints, list) and joints and all(isinstance(j, str) for j in joints):
+        from .design_joints import design_joints
+        return design_joints(base, tunings, joints, out, PROG)
     plant = resolve_plant(base)
 
     def section(type_name: str, flat=base) -> dict:

@@ -3,7 +3,7 @@
 ``python -m fto_ros.cli.paramdoc`` prints the parameter tables;
 ``python -m fto_ros.cli.paramdoc --write docs/ros_interface.md`` puts them between the
 page's BEGIN and END marker lines, so the docs cannot drift from what the node declares
-(test/test_layers_and_docs.py fails while the page differs from this output).
+(test/system/test_layers_and_docs.py fails while the page differs from this output).
 """
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from ..observers import REGISTRY
 from ..core.params import Param
 from ..plant.block import PLANT_PARAMS
 from ..runner.settings import SETTINGS
-from ..runner.torque_settings import TORQUE_SETTINGS
+from ..arm.params import COLLISION, PLANT as ARM_PLANT
 from .simulate_plant import SIM_PARAMS
 
 
@@ -105,9 +105,11 @@ def main(argv: list[str] | None = None) -> int:
     print("\n#### `simulation` — `fto-simulate --params` (node name `fto_simulate`; "
           "docs/bring_your_own_plant.md)\n")
     print(table(SIM_PARAMS, prefix="simulation."))
-    print("\n#### The external-torque node — `fto-external-torque` (node name "
-          "`external_torque_node`; docs/external_torque.md)\n")
-    print(table(TORQUE_SETTINGS))
+    print("\n#### The arm's plant — `external_torque`, `momentum_observer` (the URDF instead "
+          "of the plant block; `joints` above; docs/external_torque.md)\n")
+    print(table(ARM_PLANT))
+    print("\n#### Contact, collision and wrench — `external_torque`, `momentum_observer`\n")
+    print(table(COLLISION))
     return 0
 
 

@@ -8,6 +8,7 @@ Usage::
                  [--q0 LIST] [--amplitude LIST] [--period LIST] [--gripper-period S]
                  [--jitter US] [--stamp-noise US] [--loss P] [--loss-burst N]
                  [--model-error E] [--model-seed N] [--friction VLO,VHI,CLO,CHI]
+                 [--payload FRAME,MASS[,CX,CY,CZ[,IXX,IYY,IZZ]]]
                  [--effort KIND] [--torque-noise NM] [--current-noise A] [--kt LIST] [--gear LIST]
                  [--topic NAME] [--system NAME] [--overwrite]
 
@@ -24,7 +25,8 @@ runs on), ``--effort`` (what JointState.effort carries: fto_ros.models.arm_strea
 An arm that differs from its URDF: ``--model-error`` (the simulated links' masses, inertias
 and centres of mass; fto_ros.models.arm_urdf.perturbed) and ``--friction`` (viscous b and
 Coulomb f_c per driven joint, uniform in the ranges, instead of the URDF's), both drawn
-with ``--model-seed``; the estimators get the URDF as it is. The bag's topics:
+with ``--model-seed``; ``--payload`` (a load the arm carries, as after a grasp); the
+estimators get the URDF as it is. The bag's topics:
 :mod:`fto_ros.cli.arm_bag`. Everything that was drawn (per-link scales, friction, lost
 count) is stored as JSON in metadata.yaml ``custom_data`` under ``fto_ros.simulation``.
 """
@@ -116,6 +118,18 @@ def _friction(text: str) -> tuple[float, float, float, float]:
     return tuple(out)
 
 
+def _payload(text: str) -> tuple:
+    """FRAME,MASS[,CX,CY,CZ[,IXX,IYY,IZZ]]: a payload the simulated arm carries."""
+    frame, _, rest = text.partition(",")
+    nums = _numbers(rest) if rest else []
+    if not frame.strip() or len(nums) not in (1, 4, 7) or nums[0] <= 0 or \
+            any(x < 0 for x in nums[4:]):
+        raise argparse.ArgumentTypeError(f"expected FRAME,MASS[,CX,CY,CZ[,IXX,IYY,IZZ]] with "
+                                         f"MASS > 0 and moments >= 0, got {text!r}")
+    nums = nums + [0.0] * (7 - len(nums))
+    return frame.strip(), nums[0], tuple(nums[1:4]), tuple(nums[4:7])
+
+
 def _probability(text: str) -> float:
     x = non_negative_float(text)
     if x >= 1:
@@ -185,6 +199,9 @@ def build_parser() -> argparse.ArgumentParser:
     a("--friction", type=_friction, metavar="VLO,VHI,CLO,CHI",
       help="viscous (N m s/rad) and Coulomb (N m) friction per driven joint, uniform in these "
            "ranges (default: the URDF's)")
+    a("--payload", type=_payload, metavar="FRAME,MASS[,CX,CY,CZ[,IXX,IYY,IZZ]]",
+      help="the simulated arm carries a payload the URDF lacks (as after a grasp): mass (kg), "
+           "centre of mass (m) and principal moments about it (kg m^2), frame axes")
     a("--effort", choices=arm_stream.EFFORTS, default="commanded",
       help="what JointState.effort carries (default: commanded)")
     a("--torque-noise", type=non_negative_float, default=0.0, metavar="NM",
@@ -223,7 +240,7 @@ def _joint_roles(text: str, args):
         driven = [j.strip() for j in args.joints.split(",")]
     for j in driven:
         if j in joints and joints[j].mimic:
-            raise ConfigError("plant.joints", f"{j} is a mimic joint of {joints[j].mimic[0]}: "
+            raise ConfigError("joints", f"{j} is a mimic joint of {joints[j].mimic[0]}: "
                                               f"list its parent")
     arm = set(trunk(joints))
     fingers = {j.name: (j.lower, j.upper) for j in movable if j.name not in driven
@@ -238,7 +255,7 @@ def _joint_roles(text: str, args):
         elif parent in fingers:
             mimic[j.name] = j.mimic
         else:
-            raise ConfigError("plant.joints", f"mimic joint {j.name} follows {parent}, which "
+            raise ConfigError("joints", f"mimic joint {j.name} follows {parent}, which "
                                               f"is driven: the simulator moves mimic joints of "
                                               f"gripper fingers only")
     return driven, fingers, mimic, locks, joints
@@ -298,6 +315,9 @@ def _run(args) -> int:
         model = load_model(moving, robot_description=without_mimic(true_text),
                            locked_joints=locks, viscous_friction=viscous,
                            coulomb_friction=coulomb)
+        if args.payload is not None:
+            frame, mass, com, moments = args.payload
+            model.set_payload(frame, mass, com, np.diag(moments))
         kt = _per_driven(args.kt, len(A), "kt")
         gear = _per_driven(args.gear, len(A), "gear")
         settings = ArmSettings(duration=args.duration, rate=args.rate, substeps=args.substeps,
@@ -330,6 +350,9 @@ def _run(args) -> int:
         "friction": {"viscous": model.viscous.tolist(), "coulomb": model.coulomb.tolist(),
                      "width": model.friction_width, "drawn": args.friction},
         "model_error": {"error": args.model_error, "seed": args.model_seed, "links": links},
+        "payload": None if args.payload is None else
+        {"frame": args.payload[0], "mass": args.payload[1], "com": list(args.payload[2]),
+         "moments": list(args.payload[3])},
         "stream": {"topic": topics["joint_states"], "jitter_us": args.jitter,
                    "stamp_noise_us": args.stamp_noise, "loss": args.loss,
                    "loss_burst": args.loss_burst, "lost": int(lost.sum()),

@@ -52,7 +52,7 @@ f_k, shifted back along the chain over the same step,
 h_k the last step.  The recursion (the state, its accuracy orders and its
 exactness on polynomials) is unchanged; only what is read off it uses one sample
 more.  On sin t + 0.5 sin 3t at 1 kHz without noise this divides the
-second-derivative error by 1.8-2.5 (order 2 and 3; test/test_differentiator.py).
+second-derivative error by 1.8-2.5 (order 2 and 3; test/unit/core/test_differentiator.py).
 
 Errors: bad constructor arguments, a bad step or sample, or a step whose result
 would not be finite raise BadArgument (a ValueError) and leave the state untouched.
@@ -399,7 +399,7 @@ class Differentiator:
 
     def _mats(self, h: float):
         """(A(h)^T, h^-p, the filter input vector) of the recursion at step h in unscaled
-        coordinates: the matrices the design is checked with (test/test_differentiator.py)."""
+        coordinates: the matrices the design is checked with (test/unit/core/test_differentiator.py)."""
         NT = self._N
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             hp = h ** np.arange(NT, dtype=float)

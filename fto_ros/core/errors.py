@@ -127,3 +127,31 @@ class NotFast(FtoRosError):
 
 class ReplayError(FtoRosError):
     """The replay cannot run (e.g. the bag lacks a topic the configuration needs)."""
+
+
+class OutputError(FtoRosError, ValueError):
+    """An output path is refused (a bad argument: exit code 2; core/output_dir.py)."""
+
+
+class OutputExists(FtoRosError, FileExistsError):
+    """The output exists and replacing it was not asked for."""
+
+
+class OutputIncomplete(FtoRosError, OSError):
+    """An output could not be completed (exit code 1); the message says what became of it."""
+
+
+class CacheError(FtoRosError):
+    """A cache folder or file that is not used (core/private_cache.py): not this user's
+    private one (another owner, writable by others, a symlink), damaged, or not usable for
+    a function.  ``path`` names it when known, ``why`` says why.  Not an OSError: numba's
+    loader, which takes an OSError for a missing file, must not swallow it."""
+
+    def __init__(self, why: str, path: str | None = None):
+        super().__init__(f"{path}: {why}" if path else why)
+        self.path, self.why = path, why
+
+
+class EngineError(FtoRosError):
+    """A sweep's engine cannot run anything (scheduler unreachable, no worker, workers
+    without fto_ros, files the workers cannot see).  One line."""

@@ -17,6 +17,7 @@ import sympy
 from sympy.parsing.sympy_parser import (convert_xor, parse_expr,
                                         standard_transformations)
 
+from . import expression_budget
 from .errors import ConfigError, short
 
 #: functions a model expression may call
@@ -73,7 +74,8 @@ def _check_syntax(text: str, parameter: str) -> None:
     comparisons or boolean operators could reach the interpreter or be silently mis-read;
     exponent towers (10**10**10) and huge literal exponents make it compute numbers with
     billions of digits (a hang); a very long or deeply nested text makes it recurse
-    without end.  All are refused here, quickly, in one line.
+    without end; a constant, power or expansion over the cost budget (expression_budget.py)
+    keeps it busy for minutes.  All are refused here, quickly, in one line.
     """
     if len(text) > MAX_CHARS:
         raise ConfigError(parameter, f"expression too long ({len(text)} characters; at most "
@@ -116,6 +118,9 @@ def _check_syntax(text: str, parameter: str) -> None:
         if isinstance(node, ast.BinOp) and isinstance(node.op, (ast.Pow, ast.BitXor)):
             _check_power(node, text, parameter)
         stack.extend((child, depth + 1) for child in ast.iter_child_nodes(node))
+    # what sympy would build: constants' sizes, powers of powers, nested exponentials, the
+    # terms of the expansion (core/expression_budget.py)
+    expression_budget.check(tree, text, parameter)
 
 
 def _is_power(node: ast.AST) -> bool:

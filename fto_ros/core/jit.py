@@ -14,16 +14,19 @@ decorated here:
   family and its compiled code is cached on disk: a loop specialised per callee could not be
   cached (numba caches no function that takes a dispatcher or a closure).
 
-Compiled code is cached on disk, in a folder per version of the package's sources
-(``$FTO_ROS_CACHE``, else ``$XDG_CACHE_HOME/fto_ros``, else ``~/.cache/fto_ros``;
-``NUMBA_CACHE_DIR`` when the user set it); where no such folder is writable, everything
-still works and compiles at every start (the log line says so).  ``FTO_ROS_NUMBA=0`` in the environment turns numba off: the
+Compiled code is cached on disk, in a folder per version of the package's sources inside
+the private cache folder (core/private_cache.py: ``$FTO_ROS_CACHE``, else
+``$XDG_CACHE_HOME/fto_ros``, else ``~/.cache/fto_ros``; ``NUMBA_CACHE_DIR`` when the user set
+it), checked on every use and trusted only there (core/compile_cache.py); where there is no
+usable folder, everything still works and compiles at every start (the log line says so).
+``FTO_ROS_NUMBA=0`` in the environment turns numba off: the
 pure numpy path, which the tests run against the compiled one.
 
 ROS-free; imports numba lazily, only here.
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import logging
 import os
@@ -47,8 +50,11 @@ if os.environ.get("FTO_ROS_NUMBA", "1").strip().lower() not in ("0", "false", "o
         numba = None
 
 
-def _sources_digest() -> str:
-    """A hash of the package's sources: compiled code is kept per version of them."""
+@functools.lru_cache(maxsize=None)
+def sources_digest() -> str:
+    """A hash of the package's sources: compiled code is kept per version of them (numba
+    checks only a function's own file for changes, not the constants it took from other
+    modules, so a cache shared across versions could run stale code)."""
     root = Path(__file__).resolve().parents[1]
     h = hashlib.sha256()
     for path in sorted(root.rglob("*.py")):
@@ -57,62 +63,51 @@ def _sources_digest() -> str:
     return h.hexdigest()[:16]
 
 
-def _cache_root() -> Path | None:
-    """Where numba keeps the compiled code: a folder per version of the sources (numba
-    checks only a function's own file for changes, not the constants it took from other
-    modules, so a cache shared across versions could run stale code).  None: no writable
-    place (compile at every start)."""
-    base = Path(os.environ.get("FTO_ROS_CACHE") or
-                Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "fto_ros")
-    digest = _sources_digest()
-    target = base / "numba" / digest
+def _prune_old_versions() -> None:
+    """Keep the three most recent versions' caches (inside the checked folder only)."""
+    from . import private_cache as PC
+    if os.environ.get("NUMBA_CACHE_DIR") or not PC.writable():
+        return
+    here = PC.folder("numba", sources_digest())
+    if here is None:
+        return
     try:
-        target.mkdir(parents=True, exist_ok=True)
-        probe = target / f".probe{os.getpid()}"
-        probe.write_text("")
-        probe.unlink()
-    except OSError:
-        return None
-    # keep the three most recent versions' caches
-    try:
-        others = sorted((p for p in target.parent.iterdir() if p.is_dir() and p != target),
+        others = sorted((p for p in here.parent.iterdir()
+                         if p.is_dir() and not p.is_symlink() and p != here),
                         key=lambda p: p.stat().st_mtime)
         for old in others[:-2]:
             shutil.rmtree(old, ignore_errors=True)
     except OSError:
         pass
-    return target
 
 
-CACHE_DIR: Path | None = None
 if ENABLED:
-    if os.environ.get("NUMBA_CACHE_DIR"):          # the user's choice
-        CACHE_DIR = Path(os.environ["NUMBA_CACHE_DIR"])
-    else:
-        CACHE_DIR = _cache_root()
-        if CACHE_DIR is not None:
-            numba.config.CACHE_DIR = str(CACHE_DIR)
+    from . import compile_cache as _cc
+    _prune_old_versions()
 
-#: whether compiled code is cached on disk (False where no cache directory is writable)
-CACHING = ENABLED and CACHE_DIR is not None
+
+def caching() -> bool:
+    """Whether compiled code is cached on disk now (a usable private folder; a full or
+    read-only disk turns the writes off)."""
+    from . import private_cache as PC
+    return ENABLED and PC.writable() and _cc.numba_folder() is not None
+
+
 _OPTIONS = dict(nogil=True, error_model="numpy", boundscheck=False)
 _lock = threading.Lock()
 
 
 def _njit(fn, signature=None, nogil=True):
-    global CACHING
-    options = dict(_OPTIONS, nogil=nogil)
-    deco = numba.njit(signature, cache=CACHING, **options) if signature is not None else \
-        numba.njit(cache=CACHING, **options)
-    try:
-        return deco(fn)
-    except RuntimeError as exc:                  # "cannot cache ... no locator available"
-        if "cach" not in str(exc).lower():
-            raise
-        CACHING = False
-        LOG.warning("no writable cache directory for compiled code (%s): compiling at every "
-                    "start", exc)
-        return _njit(fn, signature, nogil)
+    """``numba.njit`` with the private disk cache (core/compile_cache.py), compiled now for
+    ``signature`` when one is given (as ``numba.njit(signature)`` does), else lazily."""
+    disp = numba.njit(**dict(_OPTIONS, nogil=nogil))(fn)
+    _cc.attach(disp)
+    if signature is not None:
+        from numba.core import typeinfer
+        with typeinfer.register_dispatcher(disp):
+            disp.compile(signature)
+        disp.disable_compile()
+    return disp
 
 
 def jit(fn=None, *, pure=None, gil=False):
@@ -276,7 +271,9 @@ def compile_report() -> str:
         return "numba off (FTO_ROS_NUMBA=0 or not installed): per-sample kernels run as numpy code"
     if not COMPILED.names:
         return ""
-    where = "cached on disk" if CACHING else "not cached (no writable cache directory)"
+    from . import private_cache as PC
+    where = ("read from the read-only cache" if PC.mode() == PC.READONLY else "cached on disk") \
+        if caching() or PC.mode() == PC.READONLY else "not cached (no usable private cache folder)"
     return (f"compiled {len(COMPILED.names)} kernel(s) in {COMPILED.seconds:.2f} s ({where}): "
             + ", ".join(COMPILED.names))
 

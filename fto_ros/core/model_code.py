@@ -8,23 +8,24 @@ one function with the kernels' model signature (core/jit.py ``MODEL``)
 
 that writes the terms (or a matrix, row-major) into ``out``.  Its source is printed by
 sympy's Python code printer (math functions, common subexpressions eliminated) into a
-module file named by the hash of that source, in a cache directory (``FTO_ROS_CACHE``,
-else ``$XDG_CACHE_HOME/fto_ros``, else ``~/.cache/fto_ros``; a temporary directory where
-none is writable), and imported from there: numba caches compiled code beside a source
-file, so a plant seen before starts without compiling.  The text is generated here from
-expressions the expression parser accepted (a closed vocabulary), and a cached file is
-used only if it holds exactly that text.
+module named by the hash of that source.  The module is kept in the private cache folder
+(core/private_cache.py: ``<cache root>/models``, owner and mode checked on every use), so that
+numba caches its compiled code and a plant seen before starts without compiling.  It is
+loaded by reading the file, comparing its bytes with the text generated here (from
+expressions the expression parser accepted: a closed vocabulary) and executing the code
+compiled from *that* text, never through the import system: no bytecode file (``.pyc``,
+planted or stale) is ever run.  A file that differs (damaged, foreign) is discarded and
+written again with one WARN line naming it; without a usable cache folder (refused, a full
+or read-only disk, ``FTO_ROS_CACHE_MODE=off``) the module lives in memory only.
 
 ROS-free.
 """
 from __future__ import annotations
 
 import hashlib
-import importlib.util
 import math
-import os
 import sys
-import tempfile
+import types
 from pathlib import Path
 from typing import Sequence
 
@@ -33,9 +34,12 @@ from sympy import S
 from sympy.printing.pycode import PythonCodePrinter
 
 from . import jit as J
+from . import private_cache as PC
+from .errors import CacheError
 
 _GROUPS = ("x", "y", "u")
-_cache_dir: Path | None = None
+#: the sub-folder of the cache root that holds the generated modules
+MODELS = "models"
 
 
 class _Printer(PythonCodePrinter):
@@ -61,25 +65,9 @@ class _Printer(PythonCodePrinter):
         return f"pow_({self._print(e.base)}, {exp})"
 
 
-def cache_dir() -> Path:
-    """Where generated model modules (and numba's compiled code for them) are kept."""
-    global _cache_dir
-    if _cache_dir is not None:
-        return _cache_dir
-    env = os.environ.get("FTO_ROS_CACHE")
-    base = Path(env) if env else Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "fto_ros"
-    for candidate in (base / "models", Path(tempfile.gettempdir()) / f"fto_ros_models_{os.getuid()}"):
-        try:
-            candidate.mkdir(parents=True, exist_ok=True)
-            probe = candidate / f".probe{os.getpid()}"
-            probe.write_text("")
-            probe.unlink()
-            _cache_dir = candidate
-            return candidate
-        except OSError:
-            continue
-    _cache_dir = Path(tempfile.mkdtemp(prefix="fto_ros_models_"))
-    return _cache_dir
+def cache_dir() -> Path | None:
+    """Where generated model modules are kept (checked now), or None: in memory only."""
+    return PC.folder(MODELS)
 
 
 class _ArrayPrinter(_Printer):
@@ -122,23 +110,41 @@ def _source(exprs: Sequence[sympy.Expr], groups: Sequence[Sequence[sympy.Symbol]
     return "\n".join(lines)
 
 
+def _stored(name: str, source: str) -> Path | None:
+    """The cache file holding exactly ``source`` (written now if missing or different), or
+    None when there is no usable cache."""
+    folder = cache_dir()
+    if folder is None:
+        return None
+    path = folder / f"{name}.py"
+    data = source.encode()
+    try:
+        held = PC.read_file(path)
+    except CacheError as err:
+        PC.discard(path, str(err))
+        held = None
+    if held is not None and held != data:
+        PC.discard(path, "not the text generated for this model")
+        held = None
+    if held is None and not PC.write_file(path, data):
+        return None
+    return path
+
+
 def _load(source: str):
     digest = hashlib.sha256(source.encode()).hexdigest()[:20]
     name = f"fto_model_{digest}"
-    if name in sys.modules:
-        return sys.modules[name].fn
-    path = cache_dir() / f"{name}.py"
-    try:
-        if not path.exists() or path.read_text() != source:
-            tmp = path.with_suffix(f".{os.getpid()}.tmp")
-            tmp.write_text(source)
-            os.replace(tmp, path)
-    except OSError:                          # a cache directory that became read-only
-        path = Path(tempfile.mkdtemp(prefix="fto_ros_models_")) / f"{name}.py"
-        path.write_text(source)
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = sys.modules.get(name)
+    if module is not None and getattr(module, "__fto_source__", None) == source:
+        return module.fn
+    path = _stored(name, source)
+    filename = str(path) if path is not None else f"<generated {name}>"
+    module = types.ModuleType(name)
+    module.__file__ = filename
+    module.__fto_source__ = source
+    # the code of the generated text itself (never a bytecode file); numba caches it beside
+    # the cached file's text, which it hashes
+    exec(compile(source, filename, "exec"), module.__dict__)
     sys.modules[name] = module
     return module.fn
 

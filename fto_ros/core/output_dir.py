@@ -17,6 +17,10 @@ and the bag writer go through here, so one rule holds everywhere:
   An empty folder holds nothing and may be replaced too.  Never a file, a device node, a
   FIFO, a socket, a symlink (to anything), or a folder holding anything else.
 
+An output that could not be completed (a full disk mid-write) is given up with
+:func:`abandon`: removed, or renamed to ``<out>.incomplete-<pid>`` with its marker saying
+so, so that no reader takes it for a finished one.
+
 Refusals raise :class:`OutputError` (a bad argument: exit code 2); an existing output
 without ``overwrite`` raises :class:`OutputExists` (what each command did before: the
 replay and the simulator exit 1, the sweep 2).  Everything is checked before anything is
@@ -35,7 +39,7 @@ from typing import Iterable
 
 import yaml
 
-from .errors import FtoRosError
+from .errors import BadArgument, OutputError, OutputExists, OutputIncomplete  # noqa: F401
 
 #: the marker file every output folder gets when it is created
 MARKER = ".fto_ros_output"
@@ -56,14 +60,6 @@ KINDS: dict[str, tuple[tuple[str, ...], tuple[str, ...], dict[str, tuple[str, ..
 REPORT_TITLE = "# fto_ros: observer comparison"
 _MAX_MARKER_BYTES = 4096
 _MAX_METADATA_BYTES = 1 << 20
-
-
-class OutputError(FtoRosError, ValueError):
-    """An output path is refused (a bad argument: exit code 2)."""
-
-
-class OutputExists(FtoRosError, FileExistsError):
-    """The output exists and replacing it was not asked for."""
 
 
 def _text(path) -> str:
@@ -198,7 +194,7 @@ def check_output(path, kind: str, *, overwrite: bool = False, inputs: Iterable =
     :class:`OutputExists` when it exists and ``overwrite`` is false.
     """
     if kind not in KINDS:
-        raise ValueError(f"unknown output kind {kind!r}")
+        raise BadArgument(f"unknown output kind {kind!r}")
     text = _text(path)
     out = Path(text)
     real = os.path.realpath(text)
@@ -239,7 +235,7 @@ def clear_output(path, kind: str, *, overwrite: bool = False, inputs: Iterable =
 def mark_output(folder, kind: str) -> None:
     """Write the marker into ``folder`` (just created by the caller)."""
     if kind not in KINDS:
-        raise ValueError(f"unknown output kind {kind!r}")
+        raise BadArgument(f"unknown output kind {kind!r}")
     (Path(folder) / MARKER).write_text(json.dumps({"written_by": "fto_ros", "kind": kind}) + "\n")
 
 
@@ -252,3 +248,72 @@ def create_output(path, kind: str, *, overwrite: bool = False, inputs: Iterable 
     except OSError as err:
         raise OutputError(f"cannot create the output {out}: {err.strerror or err}") from None
     return out
+
+
+def abandon(path, kind: str, why: str, *, keep: bool = False) -> str:
+    """Give up the output ``path`` that could not be completed (``why``, e.g. a full disk):
+    remove it, or with ``keep`` (the results of many runs, worth salvaging) or when it
+    cannot be removed, rename it to ``<path>.incomplete-<pid>`` and rewrite its marker to
+    say so.  Returns what became of it, a phrase for the command's one error line."""
+    out = Path(path)
+    if not os.path.lexists(out):
+        return f"nothing was left at {out}"
+    if not keep:
+        try:
+            shutil.rmtree(out)
+            return f"the incomplete output {out} was removed"
+        except OSError:
+            pass
+    target = out.with_name(f"{out.name}.incomplete-{os.getpid()}")
+    try:
+        os.rename(out, target)
+    except OSError as err:
+        return f"the incomplete output {out} could be neither removed nor renamed " \
+               f"({err.strerror or err})"
+    try:
+        (target / MARKER).write_text(json.dumps({"written_by": "fto_ros", "kind": kind,
+                                                 "incomplete": why}) + "\n")
+    except OSError:
+        pass                        # the name says it too
+    return f"the incomplete output was renamed {target}"
+
+
+def check_output_file(path, marker: str, *, overwrite: bool = False,
+                      inputs: Iterable = ()) -> Path:
+    """Raise unless ``path`` may be written as a single-file output (a params file a command
+    writes) whose first line is ``marker``; touch nothing.
+
+    Refused (:class:`OutputError`): an empty path, an input or a path inside one (a bag
+    folder counts whole), a parent folder that does not exist, an existing path that is not
+    a regular file (a symlink, a folder, a device) or whose first line is not ``marker``
+    (the command did not write it). An existing file without ``overwrite``:
+    :class:`OutputExists`."""
+    text = _text(path)
+    real = os.path.realpath(text)
+    for item in _protected(inputs):
+        if real == item or _inside(real, item):
+            raise OutputError(f"refusing to write {text}: it is the input {item} or inside it")
+    parent = os.path.dirname(os.path.abspath(text))
+    if not os.path.isdir(parent):
+        raise OutputError(f"{text}: the folder {parent} does not exist")
+    try:
+        st = os.lstat(text)
+    except FileNotFoundError:
+        return Path(text)
+    except OSError as err:
+        raise OutputError(f"cannot use {text} as the output: {err.strerror}") from None
+    if not overwrite:
+        raise OutputExists(f"{text}: output exists already (remove it or pass --overwrite)")
+    if not stat.S_ISREG(st.st_mode):
+        raise OutputError(f"refusing to replace {text}: not a regular file (a symlink, a "
+                          f"folder or a special file)")
+    try:
+        with open(text, encoding="utf-8", errors="replace") as fh:
+            first = fh.readline(len(marker) + 2).rstrip("\n")
+    except OSError as err:
+        raise OutputError(f"refusing to replace {text}: cannot read it ({err.strerror})") \
+            from None
+    if first != marker:
+        raise OutputError(f"refusing to replace {text}: the command did not write it (its "
+                          f"first line is not {marker!r})")
+    return Path(text)

@@ -113,7 +113,7 @@ if J.ENABLED:
         NATIVE = True
     else:
         @J.numba.cfunc(_t.void(_t.CPointer(_t.CPointer(_t.float64)), _t.CPointer(_t.intp),
-                               _t.CPointer(_t.intp), _t.voidptr), cache=J.CACHING)
+                               _t.CPointer(_t.intp), _t.voidptr))  # rare fallback: not cached
         def _libm_loop(args, dims, steps, data):
             a, b, o = args[0], args[1], args[2]
             sa, sb, so = steps[0] // 8, steps[1] // 8, steps[2] // 8

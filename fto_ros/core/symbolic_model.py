@@ -37,7 +37,8 @@ from .errors import ConfigError
 from .expressions import FUNCTIONS, parse
 from .model_code import ModelFunction
 
-_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+#: a name, matched whole (fullmatch: ``$`` would also match before a final newline, "q\n")
+_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
 #: names a user may not take (sympy's parser needs them, or they are functions/constants)
 _RESERVED = set(FUNCTIONS) | {"pi", "E", "Integer", "Float", "Rational", "Symbol", "t"}
 
@@ -52,7 +53,7 @@ def check_names(names: Sequence[str], parameter: str, taken: set[str]) -> None:
     if len(names) > MAX_NAMES:
         raise ConfigError(parameter, f"{len(names)} names: at most {MAX_NAMES}")
     for name in names:
-        if not isinstance(name, str) or not _NAME.match(name) or keyword.iskeyword(name):
+        if not isinstance(name, str) or not _NAME.fullmatch(name) or keyword.iskeyword(name):
             raise ConfigError(parameter, f"{name!r} is not a valid name (letters, digits and _ "
                               "starting with a letter, not a Python keyword)")
         if name in _RESERVED:

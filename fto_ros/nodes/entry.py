@@ -1,14 +1,21 @@
-"""The command line of the observer nodes (plain and managed): usage, the params-file
-check done before rcl parses them (with the replay tools' reader, so both refuse the
-same files with the same line), start-up and the exit status (0 on shutdown, 2 on a bad
-parameter or argument: one log line names it)."""
+"""The command line of the observer nodes (plain and managed) and of the external-torque
+node: usage, the params-file check done before rcl parses them (with the replay tools'
+reader, so both refuse the same files with the same line), start-up and the exit status
+(0 on shutdown, 2 on a bad parameter or argument: one log line names it).
+
+A node that would refuse its parameters at start-up (the plain observer, the managed one
+with ``autostart``, the external-torque node unless ``autostart`` is false) has its
+configuration built first from the same parameters (its params files' blocks for its name,
+then the ``-p`` values, read as rcl reads them): a refusal (a bad value, an unreadable URDF)
+is printed before ``rclpy.init``, so before any DDS participant exists and before any
+middleware line (:func:`preflight`)."""
 from __future__ import annotations
 
 import gc
 import os
 import sys
 import tempfile
-from typing import Callable
+from typing import Callable, Iterator
 
 import rclpy
 import rclpy.logging
@@ -17,7 +24,7 @@ from rclpy.executors import ExternalShutdownException
 
 from ..core.errors import ConfigError
 from ..observers import REGISTRY
-from ..runner.params_file import load_params_file
+from ..runner.params_file import load_params_file, parse_override
 from ..runner.runner import CONVERGENCE_FIELDS
 from ..runner.settings import SETTINGS
 from .fast_io import create_executor, spin
@@ -77,17 +84,25 @@ def node_fqn(args: list[str]) -> str:
     return f"{ns}/{name}" if ns else name
 
 
-def precheck_params_files(args: list[str]) -> None:
-    """Check --params-file arguments before rcl parses them (its errors are opaque), with the
-    reader of the replay tools: both refuse the same files with the same line."""
+def ros_options(args: list[str]) -> Iterator[tuple[str, str]]:
+    """(option, value) of every ``--params-file``, ``-p`` and ``--param`` inside the
+    ``--ros-args ... [--]`` sections of ``args``, in order."""
     in_ros = False
     for i, a in enumerate(args):
         if a == "--ros-args":
             in_ros = True
         elif a == "--":
             in_ros = False
-        elif in_ros and a == "--params-file" and i + 1 < len(args):
-            load_params_file(args[i + 1], node_fqn(args))
+        elif in_ros and a in ("--params-file", "-p", "--param") and i + 1 < len(args):
+            yield a, args[i + 1]
+
+
+def precheck_params_files(args: list[str]) -> None:
+    """Check --params-file arguments before rcl parses them (its errors are opaque), with the
+    reader of the replay tools: both refuse the same files with the same line."""
+    for option, value in ros_options(args):
+        if option == "--params-file":
+            load_params_file(value, node_fqn(args))
 
 
 def command_line_params_win(args: list[str], folder: str) -> list[str]:
@@ -100,14 +115,10 @@ def command_line_params_win(args: list[str], folder: str) -> list[str]:
     entry) wins, but given after ``-p`` its block outranks the command line.  A node-specific
     entry written last always wins; rcl still parses the ``-p`` arguments themselves (and
     refuses a malformed one), and the values are the same text, read by the same parser."""
-    pairs, in_ros = [], False
-    for i, a in enumerate(args):
-        if a == "--ros-args":
-            in_ros = True
-        elif a == "--":
-            in_ros = False
-        elif in_ros and a in ("-p", "--param") and i + 1 < len(args):
-            name, sep, value = args[i + 1].partition(":=")
+    pairs = []
+    for option, text in ros_options(args):
+        if option != "--params-file":
+            name, sep, value = text.partition(":=")
             # (an empty value or a comment: rcl itself refuses or unsets it, left to it)
             if sep and name and value.strip() and not value.lstrip().startswith("#") \
                     and "\n" not in value:
@@ -119,6 +130,64 @@ def command_line_params_win(args: list[str], folder: str) -> list[str]:
         f.write(f"/{node_fqn(args)}:\n  ros__parameters:\n")
         f.writelines(f"    {name}: {value}\n" for name, value in pairs)
     return args + ["--ros-args", "--params-file", path]
+
+
+def node_parameters(args: list[str]) -> dict | None:
+    """The parameters rcl will give the node, as the replay tools read them: each
+    ``--params-file``'s blocks for the node's name in order, then every ``-p NAME:=VALUE``
+    (which win, :func:`command_line_params_win`).  None when the command line has what this
+    reading does not follow (a ``-p`` naming a node, a value rcl reads its own way): rcl and
+    the node then decide, as before."""
+    fqn, flat, overrides = node_fqn(args), {}, {}
+    for option, text in ros_options(args):
+        if option == "--params-file":
+            flat.update(load_params_file(text, fqn))
+            continue
+        name, sep, value = text.partition(":=")
+        if not sep or not name or ":" in name:
+            return None
+        try:
+            overrides.update([parse_override(f"{name}={value}")])
+        except ConfigError:
+            return None
+    flat.update(overrides)
+    return flat
+
+
+def _autostart(flat: dict, default: bool) -> bool:
+    value = flat.get("autostart", default)
+    return value if isinstance(value, bool) else default
+
+
+def preflight(exe: str, args: list[str]) -> None:
+    """Build the configuration the node ``exe`` would build at start-up from ``args``:
+    ConfigError naming the parameter if it would refuse it.  Nothing for a node that
+    starts unconfigured (a managed node without autostart: its configure transition
+    reports), nor where :func:`node_parameters` leaves the reading to rcl."""
+    flat = node_parameters(args)
+    if flat is None:
+        return
+    if exe == "external_torque_node":
+        if not _autostart(flat, True):
+            return
+        from ..runner.torque_settings import build
+        try:
+            build(flat)
+        except ConfigError:
+            raise
+        except Exception as exc:  # noqa: BLE001  as the node's configure says it
+            raise ConfigError("plant.urdf", f"cannot build the model: {type(exc).__name__}: "
+                              + " ".join(str(exc).split())[:300]) from None
+        return
+    if exe == "managed_observer_node" and not _autostart(flat, False):
+        return
+    from ..runner import Runner
+    try:
+        Runner({k: v for k, v in flat.items() if not k.startswith("qos_overrides.")})
+    except ConfigError:
+        raise
+    except Exception:  # noqa: BLE001  not a refusal: the node's own start reports it
+        return
 
 
 def _error_line(text: str) -> None:
@@ -135,6 +204,7 @@ def run(make_node: Callable, prog: str, exe: str, managed: bool,
         return 0
     try:
         precheck_params_files(args)
+        preflight(exe, args)         # a refusal before rclpy.init: no DDS participant yet
     except ConfigError as exc:
         _error_line(f"fto_ros: bad parameter: {exc}")
         return 2

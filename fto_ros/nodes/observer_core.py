@@ -40,6 +40,7 @@ from ..core.errors import ConfigError, DecodeError
 from ..runner import loop as L
 from ..runner.runner import HELD, Runner, reason
 from ..runner.sources import make_source
+from .arm_core import ArmCore
 from .fast_io import message_info_callback
 from .publisher import MESSAGE_CLASS, REFRESH_S, Publisher
 from .parameters import NodeParameters, check_declared
@@ -67,7 +68,7 @@ def rclpy_fallback(payload: bytes, msgtype: str, key: str):
         raise DecodeError(f"{type(exc).__name__}") from None
 
 
-class ObserverCore(ObserverServices):
+class ObserverCore(ArmCore, ObserverServices):
     """The observer behaviour of a node (``self`` is an rclpy Node or LifecycleNode)."""
 
     _runner: Runner | None = None
@@ -75,12 +76,18 @@ class ObserverCore(ObserverServices):
 
     # ------------------------------------------------------------- life cycle
     def configure(self) -> None:
-        """Declare and validate the parameters and build the observer (no I/O yet).
+        """Declare and validate the parameters and build the observer (no I/O yet; an arm
+        family without its URDF waits for the robot_description topic: arm_core.py).
         ConfigError (naming the parameter) for an unusable configuration."""
         self._params = NodeParameters(self)
         self._params.declare()
-        self._runner = Runner(self._params.with_unknown_overrides())
-        self._source = make_source(self._runner, rclpy_fallback)
+        flat = self._params.with_unknown_overrides()
+        if not self._arm_waits(flat):
+            self._configured(Runner(flat))
+
+    def _configured(self, runner: Runner) -> None:
+        self._runner = runner
+        self._source = make_source(runner, rclpy_fallback)
         self._received = {"measured_output": 0, "input": 0, "joint_states": 0}
         self._published = 0
         self._dropped_disabled = 0
@@ -105,7 +112,13 @@ class ObserverCore(ObserverServices):
         self.get_logger().info("design: " + "; ".join(f"{k} = {v}" for k, v in obs.diagnostics().items()))
 
     def open(self) -> None:
-        """Outputs, subscriptions, services, timers: the observer runs."""
+        """Outputs, subscriptions, services, timers: the observer runs (an arm family
+        waiting for its URDF: the robot_description subscription until it comes)."""
+        self._entities = self._open_description() if self._waiting is not None else []
+        if self._runner is not None:
+            self._entities += self._open_observer()
+
+    def _open_observer(self) -> list:
         runner, s = self._runner, self._runner.settings
         obs = runner.observer
         ent = []
@@ -151,9 +164,10 @@ class ObserverCore(ObserverServices):
         ent.append(self.create_timer(s["diagnostics.period"], self._publish_diagnostics,
                                      clock=steady))
         ent.append(self.create_timer(REFRESH_S, self._refresh, clock=steady))
-        self._entities = ent
+        ent += self._open_arm()
         self._jump_handle = None
         self._arm_jump_callback()
+        return ent
 
     def _refresh(self) -> None:
         """Every REFRESH_S: which outputs have subscribers, and whether sim time is on."""
@@ -198,6 +212,8 @@ class ObserverCore(ObserverServices):
                         if new.get(k) != self._params.flat.get(k)}
                 if diff and diff <= OUTPUT_ONLY:     # the outputs' business: no restart
                     return self._change_outputs(new, params)
+                if self._arm_takes(diff):            # a payload: into the running estimator
+                    return self._arm_payload(new, params)
                 self._runner.reconfigure(new)
         except ConfigError as exc:
             return self._refuse_change(params, str(exc))
@@ -407,7 +423,7 @@ class ObserverCore(ObserverServices):
             max(summary.level, 0 if self._enabled else 1), f"{self.get_name()}: observer",
             disabled + message, hw, list(summary.values) + values)] + [
             (st.level, f"{self.get_name()}: joint {name}", st.message, hw, st.values)
-            for name, st in zip(runner.joints, each)])
+            for name, st in zip(runner.joints, each)] + self._arm_statuses(hw))
 
     # ------------------------------------------------------------- accessors
     def executor_kind(self) -> str:

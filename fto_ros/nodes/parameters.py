@@ -129,9 +129,11 @@ class NodeParameters:
             if child is None:
                 raise ConfigError(full, f"required: {spec.description}")
             classes.append(observer_class(child))
+        # the plant: the plant block, or an arm family's URDF and conventions (full names)
+        plant = [(p.name, p) for p in classes[0].ARM_PARAMS] if getattr(classes[0], "ARM", False) \
+            else [(PLANT_PREFIX + p.name, p) for p in PLANT_PARAMS]
         specs = [(p.name, p) for p in SETTINGS] + \
-                [(f"{c.TYPE}.{p.name}", p) for c in classes for p in c.PARAMS] + \
-                [(PLANT_PREFIX + p.name, p) for p in PLANT_PARAMS]      # the plant block
+                [(f"{c.TYPE}.{p.name}", p) for c in classes for p in c.PARAMS] + plant
         for full, p in specs:
             if node.has_parameter(full):
                 value = typed_override(p, full, node.get_parameter(full))

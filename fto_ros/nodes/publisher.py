@@ -47,12 +47,21 @@ class Publisher:
         def pub(mtype, topic):
             return create_publisher(mtype, topic, OUT_QOS, event_callbacks=no_events,
                                     qos_overriding_options=overridable)
+        self.create = pub
         self.plan = plan
         self.per_sample = [pub(MESSAGE_CLASS[s.msgtype], f"~/{s.topic}") for s in plan.specs]
         self.diag = pub(DiagnosticArray, "/diagnostics")
         self.publishers = self.per_sample + [self.diag]
+        self.extra = None
         self.wanted: list = []
         self.refresh()
+
+    def add(self, extra) -> list:
+        """Outputs of a family beyond the plan's (nodes/arm_outputs.py: built with
+        ``self.create``, so on the same QoS), refreshed and published with the plan's;
+        their publishers."""
+        self.extra = extra
+        return extra.publishers
 
     def set_frame(self, frame: str) -> None:
         """header.frame_id of the JointStates from now on (output.frame_id changed)."""
@@ -62,6 +71,8 @@ class Publisher:
         """Which per-sample topics have a subscriber (the others are not published)."""
         self.wanted = [(i, p) for i, p in enumerate(self.per_sample)
                        if p.get_subscription_count() > 0]
+        if self.extra is not None:
+            self.extra.refresh()
 
     def publish(self, ok, x, w, c, sec: int, nanosec: int) -> None:
         """One sample's outputs: x (J, n), w (J, r), c (J, ncf), ok (J,) the joints with one."""
@@ -70,6 +81,8 @@ class Publisher:
             payload = encode(i, sec, nanosec, x, w, c, ok)
             if payload is not None:
                 pub.publish(payload)
+        if self.extra is not None:
+            self.extra.publish(ok, x, w, c, sec, nanosec)
 
     def publish_statuses(self, ns: int | None, statuses) -> None:
         """/diagnostics: (level, name, message, hardware_id, values) per status."""

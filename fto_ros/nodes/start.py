@@ -32,7 +32,15 @@ def managed() -> int:
 
 
 def external_torque() -> int:
-    return _start("fto_ros.nodes.torque_node")
+    """``fto-external-torque``: the observer node with the arm's defaults: node name
+    external_torque_node (unless remapped) and observer.type external_torque (unless a
+    params file or -p gives one); docs/external_torque.md, "The node"."""
+    import sys
+    signal.signal(signal.SIGINT, _quiet)
+    from .arm_start import arm_arguments
+    from .observer_node import main
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    return main(arm_arguments(sys.argv[1:]))
 
 
 def player() -> int:

@@ -149,6 +149,22 @@ class Observer(abc.ABC):
         return {}
 
 
+class RestartCovariance:
+    """A Kalman filter whose (re)start covariance lives in its constants (``_p0()``: a view
+    of n x n floats there): ``P0`` reads a copy and assigning sets it, as ``track`` does at
+    every hand-over (a tracker provides this, its ``R`` and its NIS as st[HEALTH]).  The
+    class defines ``_p0``."""
+
+    @property
+    def P0(self) -> np.ndarray:
+        """The covariance every (re)start begins with (a copy; assign to change it)."""
+        return self._p0().copy()
+
+    @P0.setter
+    def P0(self, value) -> None:
+        self._p0()[:] = np.asarray(value, dtype=float).reshape(self._p0().shape)
+
+
 class KernelObserver(Observer):
     """An observer family as a compiled per-sample kernel (observers/kernel.py) plus this
     adapter: the subclass designs and builds the kernel's constants and work memory once

@@ -14,10 +14,13 @@ from typing import Any, Mapping
 from ..core.errors import ConfigError, short
 from .base import Observer
 from .ekf import ExtendedKalmanFilter
+from .external_torque import ExternalTorqueObserver
 from .global_norm import GlobalNormObserver
 from .high_gain import HighGainObserver
 from .hosm import HosmObserver
+from .joint_kalman import JointKalmanFilter
 from .luenberger import LuenbergerObserver
+from .momentum_observer import MomentumObserverFamily
 from .newton_inversion import NewtonInversionObserver
 from .prescribed_time import PrescribedTimeObserver
 from .single_delay import SingleDelayObserver
@@ -25,7 +28,8 @@ from .track import TrackObserver
 
 REGISTRY: dict[str, type[Observer]] = {cls.TYPE: cls for cls in (
     NewtonInversionObserver, SingleDelayObserver, PrescribedTimeObserver, LuenbergerObserver,
-    HosmObserver, GlobalNormObserver, HighGainObserver, ExtendedKalmanFilter, TrackObserver)}
+    HosmObserver, GlobalNormObserver, HighGainObserver, ExtendedKalmanFilter, JointKalmanFilter,
+    TrackObserver, ExternalTorqueObserver, MomentumObserverFamily)}
 
 
 def observer_class(type_name: str) -> type[Observer]:

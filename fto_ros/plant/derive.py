@@ -35,6 +35,7 @@ DERIVES: dict[str, tuple[str, ...]] = {
     "global_norm": ("n_states", "n_inputs", "f", "state_names", "chain_map"),
     "high_gain": ("n_states", "n_inputs", "f", "state_names", "chain_map"),
     "ekf": ("states", "inputs", "constants", "f", "h"),
+    "joint_kalman": ("n_outputs", "state_names"),
 }
 
 
@@ -260,6 +261,35 @@ def _chain(plant: Plant, who: str) -> Derivation:
     return Derivation(params, figures, _nominal_note(plant, who))
 
 
+# ----------------------------------------------------------------- model-free
+def _joint_kalman(plant: Plant, section) -> Derivation:
+    """The outputs only: each must be a state (an encoder's position); the chain's states
+    are named after it and the states its f says are its derivatives."""
+    who = "joint_kalman"
+    _, measured = output_matrix(plant, who)
+    by_output = {i: (j, c) for j, (i, c) in measured.items()}
+    order = section.get("order", 3)
+    order = order if isinstance(order, int) and 2 <= order <= 4 else 3
+    names: list[str] = []
+    for i in range(plant.p):
+        if i not in by_output or by_output[i][1] != 1.0:
+            where = plant.where("h", i)
+            raise ConfigError(where, f"{who} needs each output to be a state (an encoder's "
+                              f"position, y = q): {where} is {plant.h[i]}")
+        j = by_output[i][0]
+        chain = [plant.states[j]]
+        for k in range(1, order):
+            nxt = plant.f[j] if j is not None else None
+            j = plant.x.index(nxt) if nxt is not None and nxt in plant.x else None
+            chain.append(plant.states[j] if j is not None else
+                         chain[0] + ("_dot", "_ddot", "_dddot")[k - 1])
+        names += chain
+    notes = [f"{who} is model-free: it takes the measured outputs from the plant (h) and "
+             "nothing of f, the inputs or the constants"]
+    return Derivation(dict(n_outputs=plant.p, state_names=names),
+                      {"chain per output": ", ".join(names)}, notes)
+
+
 _DERIVATIONS: dict[str, Callable[[Plant, Mapping[str, Any]], Derivation]] = {
     "single_delay": _single_delay,
     "prescribed_time": _prescribed_time,
@@ -269,6 +299,7 @@ _DERIVATIONS: dict[str, Callable[[Plant, Mapping[str, Any]], Derivation]] = {
     "ekf": lambda plant, section: _as_text(plant, "ekf", False),
     "global_norm": lambda plant, section: _chain(plant, "global_norm"),
     "high_gain": lambda plant, section: _chain(plant, "high_gain"),
+    "joint_kalman": _joint_kalman,
 }
 
 

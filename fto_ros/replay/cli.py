@@ -64,6 +64,21 @@ def _fmt(v, spec=".3g") -> str:
     return "n/a" if v is None else format(v, spec)
 
 
+def joint_lines(je: dict, settle: float) -> list[str]:
+    """The per-joint errors, each field in its own unit: RMS (max) after the settle time."""
+    fields, units = je["fields"], je.get("units") or {}
+    head = ", ".join(f"{f}" + (f" [{units[f]}]" if units.get(f) else "") for f in fields)
+    lines = [f"  after {settle:g} s, RMS (max) |error| per joint: {head}"]
+    rows = list(je["per_joint"].items()) + [("all joints", je["all_joints"])]
+    width = max(len(name) for name, _ in rows)
+    for name, st in rows:
+        per = st["per_state"]
+        lines.append(f"    {name:<{width}}  " + "  ".join(
+            f"{f} {_fmt(per[f]['rms_after_settle'])} ({_fmt(per[f]['max_abs_after_settle'])})"
+            for f in fields))
+    return lines
+
+
 def summary(m: dict) -> str:
     """A few human-readable lines about a replay's metrics."""
     lines = [f"{m['observer_type']} on {m['bag']}: {m['samples_accepted']} samples accepted, "
@@ -76,14 +91,16 @@ def summary(m: dict) -> str:
                  f"convergence time (tol {m['tolerance']:g}): "
                  f"{_fmt(m['convergence_time_s'], '.4g')}"
                  + ("" if m["convergence_time_s"] is None else " s"))
-    if m["errors"]:
+    if m.get("joint_errors"):
+        lines += joint_lines(m["joint_errors"], m["settle_time_s"])
+    elif m["errors"]:
         per = m["errors"]["per_state"]
         lines.append(f"  after {m['settle_time_s']:g} s: max |error| "
                      + ", ".join(f"{k} {_fmt(v['max_abs_after_settle'])}" for k, v in per.items())
                      + "; RMS " + ", ".join(f"{k} {_fmt(v['rms_after_settle'])}"
                                             for k, v in per.items()))
     else:
-        lines.append(f"  {m['errors_note']}")
+        lines.append(f"  {m['errors_note'] or 'no error metrics (no ground truth)'}")
     if m.get("unknown_input_errors"):
         per = m["unknown_input_errors"]["per_state"]
         lines.append(f"  unknown input after {m['settle_time_s']:g} s: max |error| "

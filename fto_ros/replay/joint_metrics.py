@@ -9,7 +9,7 @@ unmatched); a field the truth leaves empty has no error metrics.
 """
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -36,10 +36,26 @@ def _truth_columns(msgs, joints) -> dict[str, np.ndarray]:
     return out
 
 
-def joint_errors(plan, run, truth, settle: float) -> tuple[dict[str, Any] | None, str | None]:
+def field_units(spec, units: Sequence[str], ui_units: Sequence[str]) -> dict[str, str]:
+    """The unit of each field of the plan's ``estimated_joint_states`` ``spec`` (the plant's
+    unit of the state or unknown input it publishes); '' where the plant gives none."""
+    out = {}
+    for f, field in zip(FIELDS, spec.fields):
+        unit = ""
+        if field is not None and len(field[1]):
+            src, i = field[0], int(field[1][0])
+            names = units if src == "x" else ui_units
+            unit = names[i] if 0 <= i < len(names) else ""
+        out[f] = unit
+    return out
+
+
+def joint_errors(plan, run, truth, settle: float, units: Sequence[str] = (),
+                 ui_units: Sequence[str] = ()) -> tuple[dict[str, Any] | None, str | None]:
     """({"per_joint": {joint: error_stats of its fields}, "all_joints": error_stats of every
-    joint's errors together, ...}, None), or (None, why there are none); ``plan`` the
-    per-joint source's output plan."""
+    joint's errors together, "units": {field: unit}, ...}, None), or (None, why there are
+    none); ``plan`` the per-joint source's output plan.  Each field in its own unit: no norm
+    over the fields (rad, rad/s, N m)."""
     t_truth, msgs = truth
     if not len(msgs):
         return None, "no ground truth: the truth topic has no messages"
@@ -66,18 +82,28 @@ def joint_errors(plan, run, truth, settle: float) -> tuple[dict[str, Any] | None
         rows = rows[mask]
         err = at[mask] - np.column_stack([est[f][rows, j] for f in fields])
         settled = run.est_cj[rows, j, 0] >= settle - 1e-9
-        per_joint[name] = M.error_stats(err, fields, settled)
+        per_joint[name] = _by_field(err, fields, settled)
         per_joint[name]["matched_samples"] = int(rows.size)
         matched += int(rows.size)
         unmatched += int((~mask).sum())
         all_err.append(err)
         all_settled.append(settled)
-    overall = M.error_stats(np.concatenate(all_err), fields, np.concatenate(all_settled))
-    return {"fields": fields, "per_joint": per_joint, "all_joints": overall,
+    overall = _by_field(np.concatenate(all_err), fields, np.concatenate(all_settled))
+    fu = field_units(spec, units, ui_units)
+    return {"fields": fields, "units": {f: fu[f] for f in fields}, "per_joint": per_joint,
+            "all_joints": overall,
             "matched_samples": matched, "unmatched_samples": unmatched,
             "definition": "error = truth - estimate per joint and field (the JointState the "
                           "replay publishes: position, velocity, effort), the truth JointState "
                           "mapped by joint name and taken at each estimate's stamp (exact ns "
                           "match, else linear interpolation); 'all_joints' pools every joint's "
-                          "errors; 'after_settle' as in 'errors'"}, None
+                          "errors field by field; 'after_settle' as in 'errors'; no norm "
+                          "over the fields (each in its own unit, 'units')"}, None
+
+
+def _by_field(err: np.ndarray, fields, settled) -> dict[str, Any]:
+    """error_stats per field, without a norm across the fields."""
+    out = M.error_stats(err, fields, settled)
+    del out["norm"]
+    return out
 

@@ -61,13 +61,14 @@ def _max_abs(a: np.ndarray) -> float | None:
 
 
 def error_stats(err: np.ndarray, state_names: Sequence[str],
-                settled: np.ndarray) -> dict[str, Any]:
+                settled: np.ndarray, units: Sequence[str] | None = None) -> dict[str, Any]:
     """Per-state and norm statistics of the error rows ``err`` (N, n).
 
     ``settled`` marks the rows after the settle time.  Returns
     ``{"per_state": {name: {rms, max_abs, rms_after_settle, max_abs_after_settle}},
     "norm": {...same, for the Euclidean norm of the error}}``; a statistic over
-    no samples is None.
+    no samples is None.  With ``units`` (one per state): ``"units"`` {name: unit}, and no
+    norm when they differ (rad, rad/s and N m are never added up).
     """
     err = np.asarray(err, dtype=float)
     settled = np.asarray(settled, dtype=bool)
@@ -78,13 +79,17 @@ def error_stats(err: np.ndarray, state_names: Sequence[str],
             "rms": _rms(e), "max_abs": _max_abs(e),
             "rms_after_settle": _rms(e[settled]), "max_abs_after_settle": _max_abs(e[settled]),
         }
+    out: dict[str, Any] = {"per_state": per_state}
+    if units is not None and len(units) == len(state_names):
+        out["units"] = dict(zip(state_names, units))
+        if len(set(units)) > 1:
+            out["norm_note"] = "no norm: the states have different units"
+            return out
     norm = np.sqrt(np.sum(err * err, axis=1)) if err.size else np.zeros(0)
-    return {
-        "per_state": per_state,
-        "norm": {"rms": _rms(norm), "max": _max_abs(norm),
-                 "rms_after_settle": _rms(norm[settled]),
-                 "max_after_settle": _max_abs(norm[settled])},
-    }
+    out["norm"] = {"rms": _rms(norm), "max": _max_abs(norm),
+                   "rms_after_settle": _rms(norm[settled]),
+                   "max_after_settle": _max_abs(norm[settled])}
+    return out
 
 
 def convergence_time(t: np.ndarray, err_max_abs: np.ndarray, tolerance: float) -> float | None:

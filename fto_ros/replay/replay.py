@@ -46,12 +46,13 @@ from typing import Any
 import numpy as np
 
 from ..bag.writer import warm_up
-from ..core.cdr import JOINT_STATE
-from ..core.output_dir import check_output
+from ..core.command_line import one_line
+from ..core.output_dir import OutputIncomplete, abandon, check_output
 from ..plant.block import units_of
 from ..runner.params_file import load_params_files
 from ..runner.runner import Runner
 from ..runner.status import LEVEL_NAMES
+from . import arm_metrics as AM
 from . import joint_metrics as JM
 from . import metrics as M
 from .run import _Run, _run
@@ -135,22 +136,27 @@ def replay(bag_path, params_path, out_dir, *, node_name: str | None = None,
     finally:
         if gc_was_enabled:
             gc.enable()
-    m0 = time.perf_counter()
-    metrics, plot_data = _metrics(runner, run, bag_path, params_path, out_dir, fqn, after,
-                                  tolerance)
-    metrics["params_files"] = [str(p) for p in params_paths]
-    metrics["overrides"] = dict(overrides or {})
-    metrics["timing_s"]["metrics"] = time.perf_counter() - m0
-    if plot:
-        p0 = time.perf_counter()
-        from .plot import plot_replay
-        units, ui_units, _ = units_of(flat)
-        plot_replay(out_dir / "replay.png", **plot_data, units=units, ui_units=ui_units,
-                    title=f"{obs.TYPE}: {params_path.name} on {bag_path.name}")
-        metrics["plot"] = "replay.png"
-        metrics["timing_s"]["plot"] = time.perf_counter() - p0
-    (out_dir / "metrics.json").write_text(
-        json.dumps(M.json_safe(metrics), indent=2, allow_nan=False) + "\n")
+    try:                   # the bag is written; an output without its metrics is none
+        m0 = time.perf_counter()
+        metrics, plot_data = _metrics(runner, run, bag_path, params_path, out_dir, fqn, after,
+                                      tolerance, units_of(flat))
+        metrics["params_files"] = [str(p) for p in params_paths]
+        metrics["overrides"] = dict(overrides or {})
+        metrics["timing_s"]["metrics"] = time.perf_counter() - m0
+        if plot:
+            p0 = time.perf_counter()
+            from .plot import plot_replay
+            units, ui_units, _ = units_of(flat)
+            plot_replay(out_dir / "replay.png", **plot_data, units=units, ui_units=ui_units,
+                        title=f"{obs.TYPE}: {params_path.name} on {bag_path.name}")
+            metrics["plot"] = "replay.png"
+            metrics["timing_s"]["plot"] = time.perf_counter() - p0
+        (out_dir / "metrics.json").write_text(
+            json.dumps(M.json_safe(metrics), indent=2, allow_nan=False) + "\n")
+    except OSError as err:
+        what = abandon(out_dir, "bag", f"{err.strerror or err}")
+        raise OutputIncomplete(f"cannot complete the output {out_dir}: "
+                               f"{err.strerror or one_line(err)}; {what}") from None
     _check_accepted(metrics, min_accepted)
     return metrics
 
@@ -171,8 +177,9 @@ def _check_accepted(m: dict, min_accepted: float) -> None:
 
 
 def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_dir: Path,
-             fqn: str, after: float | None, tolerance: float) -> tuple[dict, dict]:
-    """(metrics dict, plot arguments) of a finished run."""
+             fqn: str, after: float | None, tolerance: float,
+             units: tuple = ([], [], [])) -> tuple[dict, dict]:
+    """(metrics dict, plot arguments) of a finished run; ``units``: plant.block.units_of."""
     obs, settings, inp = runner.observer, runner.settings, run.inputs
     info, streams = inp.info, inp.streams
     names = list(obs.state_names)
@@ -190,13 +197,18 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
     truth_note = inp.truth_note
     truth_t = truth_x = None
     joint_errors = None
-    if "truth_joints" in inp.roles:     # the per-joint source's truth: by joint name
+    if runner.joints and "truth_joints" in inp.roles:   # per joint: by joint name
         joint_errors, truth_note = JM.joint_errors(run.source.plan, run, streams.truth_joints,
-                                                   settle)
+                                                   settle, units[0], units[1])
     if "truth" in inp.roles:
         truth_t, truth_x, why = _truth_rows(streams.truth, inp.truth_topic, n, "",
                                             f"the observer has {n} states")
         truth_note = why or truth_note
+    arm_ui = None
+    if runner.intake is not None and "truth_joints" in inp.roles:     # an arm's, by name
+        truth_t, truth_x, arm_w, why = AM.truth(streams.truth_joints, obs)
+        truth_note = why or truth_note
+        arm_ui = None if truth_t is None else (truth_t, arm_w)
     errors = conv_time = err_t = err_norm = None
     if truth_x is not None and not t_est_ns.size:
         truth_note = "no accepted samples: nothing to compare with the ground truth"
@@ -204,7 +216,8 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
         mask, x_at = M.match_truth(t_est_ns, truth_t, truth_x)
         err = x_at[mask] - x_est[mask]
         settled = conv[mask, 0] >= settle - 1e-9  # time since (re)start, float round-off
-        errors = M.error_stats(err, names, settled)
+        state_units = units[0] if len(units[0]) == n else None
+        errors = M.error_stats(err, names, settled, state_units)
         errors.update(
             matched_samples=int(mask.sum()), settled_samples=int(settled.sum()),
             unmatched_samples=int((~mask).sum()),
@@ -219,7 +232,7 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
             err_norm = np.sqrt(np.sum(err * err, axis=1))
         elif truth_note is None:
             truth_note = "no estimate lies within the ground truth's time range"
-    ui_errors, ui_note, ui_plot = _unknown_input_errors(obs, run, t_est_ns, conv, settle)
+    ui_errors, ui_note, ui_plot = _unknown_input_errors(obs, run, t_est_ns, conv, settle, arm_ui)
     p50_obs, p99_obs = runner.update_time_us()
     duration_s = info.duration_ns / 1e9
     wall = run.timing["replay_total"]
@@ -288,9 +301,12 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
             str(k): (v if isinstance(v, (int, float, str, bool)) or v is None else str(v))
             for k, v in obs.diagnostics().items()},
     }
-    if source.truth_msgtype == JOINT_STATE:     # the per-joint source's figures
+    if runner.joints:                           # the per-joint source's figures
         metrics.update(joints=list(runner.joints), joint_errors=joint_errors,
                        truth_topic=inp.truth_topic if "truth_joints" in inp.roles else None)
+    if runner.intake is not None:                      # an arm's external torques
+        metrics["arm"] = AM.metrics(runner, run, *(arm_ui or (None, None)),
+                                    streams.times("joint_states").size)
     if "mode" in runner.convergence_fields:            # a composition (track)
         t_rel = (t_est_ns - t_start_ns) / 1e9 if t_start_ns is not None else np.zeros(0)
         metrics["composition"] = M.composition(t_rel, conv, runner.convergence_fields)
@@ -328,8 +344,9 @@ def _truth_rows(stream, topic: str, width: int, kind: str, has: str):
 
 
 def _unknown_input_errors(obs, run: _Run, t_est_ns: np.ndarray, conv: np.ndarray,
-                          settle: float) -> tuple[dict | None, str | None, tuple | None]:
-    """(errors like 'errors' but for the unknown input, a note, plot data) of a finished run."""
+                          settle: float, given=None) -> tuple[dict | None, str | None, tuple | None]:
+    """(errors like 'errors' but for the unknown input, a note, plot data) of a finished run;
+    ``given``: its truth (stamps, rows) when not a topic of its own (an arm's)."""
     if not run.est_ui.size:
         note = None if not obs.has_unknown_input else \
             "the observer published no unknown-input estimate"
@@ -340,7 +357,9 @@ def _unknown_input_errors(obs, run: _Run, t_est_ns: np.ndarray, conv: np.ndarray
     names = list(getattr(obs, "unknown_input_names", None) or [f"zeta{j}" for j in range(q)])
     truth_t = truth_x = None
     note = run.inputs.truth_ui_note
-    if "truth_ui" in run.inputs.roles:
+    if given is not None:
+        (truth_t, truth_x), note = given, None
+    elif "truth_ui" in run.inputs.roles:
         truth_t, truth_x, why = _truth_rows(run.inputs.streams.truth_ui,
                                             run.inputs.truth_ui_topic, q,
                                             "unknown-input ", f"the estimate has {q}")

@@ -50,19 +50,78 @@ def _values(text: str, where: str, count: int) -> list[str] | None:
 
 def per_joint(flat: Mapping[str, Any], joints: Sequence[str]) -> list[dict[str, Any]]:
     """The flat parameters of each joint's observer: the same, with each per-joint constant
-    replaced by that joint's value.  ConfigError for a malformed per-joint constant."""
+    replaced by that joint's value, and each ``joint_overrides`` entry's value for that
+    joint.  ConfigError for a malformed per-joint constant or override."""
     if len(set(joints)) != len(joints):
         dup = next(j for j in joints if list(joints).count(j) > 1)
         raise ConfigError("joints", f"joint {short(dup)} is listed twice")
     texts = flat.get(CONSTANTS) or []
     columns = [(_values(t, f"{CONSTANTS}[{i}]", len(joints)) if isinstance(t, str) else None)
                for i, t in enumerate(texts)]
+    overrides = overrides_by_joint(flat.get(OVERRIDES) or [], len(joints))
     out = []
     for j in range(len(joints)):
         f = dict(flat)
         if texts:
             f[CONSTANTS] = [t if col is None else col[j] for t, col in zip(texts, columns)]
+        f.update({name: values[j] for name, values in overrides.items()})
         out.append(f)
+    return out
+
+
+OVERRIDES = "joint_overrides"
+#: longest joint_overrides entry (characters)
+MAX_OVERRIDE = 100_000
+
+
+def _override_value(v: Any) -> bool:
+    """A number, a bool, or a flat list of numbers: what a parameter of one joint may be."""
+    def scalar(x):
+        return isinstance(x, (bool, int, float))
+    return scalar(v) or (isinstance(v, list) and all(scalar(x) and not isinstance(x, bool)
+                                                       for x in v))
+
+
+def overrides_by_joint(texts: Sequence[Any], count: int) -> dict[str, list[Any]]:
+    """{'section.name': [the value of each joint]} of ``joint_overrides`` entries
+    ``'section.name=[v_1, ..., v_J]'`` (JSON values: a number, or a list for an array
+    parameter); ConfigError naming the entry when one is malformed, names no observer
+    parameter, or does not give one value per joint."""
+    import json
+
+    from ..observers import REGISTRY
+    out: dict[str, list[Any]] = {}
+    if not isinstance(texts, (list, tuple)):
+        raise ConfigError(OVERRIDES, f"expected a list of 'section.name=[...]' texts, got "
+                          f"{short(texts)}")
+    for i, text in enumerate(texts):
+        where = f"{OVERRIDES}[{i}]"
+        if not isinstance(text, str) or len(text) > MAX_OVERRIDE:
+            raise ConfigError(where, f"expected a text 'section.name=[v_1, ..., v_J]' of at most "
+                              f"{MAX_OVERRIDE} characters, got {short(text)}")
+        name, sep, value = text.partition("=")
+        name = name.strip()
+        section, dot, short_name = name.partition(".")
+        cls = REGISTRY.get(section)
+        if not sep or not dot or cls is None or \
+                short_name not in {p.name for p in cls.PARAMS}:
+            raise ConfigError(where, f"{short(name)} is not an observer parameter ('section.name="
+                              "[value per joint]', e.g. 'joint_kalman.bandwidth=[20, 30]')")
+        try:
+            values = json.loads(value)
+        except ValueError:
+            values = None
+        if not isinstance(values, list) or len(values) != count or \
+                not all(_override_value(v) for v in values):
+            raise ConfigError(where, f"{name}: expected a list of {count} values (one per joint, "
+                              f"in the order of 'joints'; a value a number or a list of "
+                              f"numbers), got {short(value.strip())}")
+        if name in out:
+            raise ConfigError(where, f"{name} is overridden twice")
+        kind = next(p.kind for p in cls.PARAMS if p.name == short_name)
+        if kind.endswith("_array"):             # one number stands for a one-element array
+            values = [v if isinstance(v, list) else [v] for v in values]
+        out[name] = values
     return out
 
 

@@ -26,10 +26,12 @@ def _pick(names: list[str], values, joints: Sequence[str], field: str) -> list[f
     return out
 
 
-def joint_state_sample(msg, settings: Mapping[str, Any], clock: float | None = None
-                       ) -> tuple[float, list[float], list[float] | None] | str:
+def joint_state_sample(msg, settings: Mapping[str, Any], clock: float | None = None,
+                       intake=None) -> tuple[float, list[float], list[float] | None] | str:
     """(t, y, u) from a JointState per the ``joint_states.*`` settings, or a rejection reason:
     the one intake of the node and the replay.  u is None when no input joints are configured.
+    ``intake``: an arm family's (runner/arm_intake.py, ``Runner.intake``), which takes the
+    joints by name instead of the settings.
 
     ``clock`` is the time (s) the header stamp is checked against, one that cannot lag the
     data: the node's wall clock, the replay's log time (the recording's receipt time); None
@@ -44,6 +46,24 @@ def joint_state_sample(msg, settings: Mapping[str, Any], clock: float | None = N
       more than ``time.max_gap``: a bag or a simulation that starts at 0 may stamp 0;
     - ``future_stamp``: a stamp more than ``time.future_tolerance`` ahead of the clock.
     """
+    if intake is not None:
+        sample = intake.take(msg.name, msg.position, msg.effort)
+        if sample.__class__ is str:
+            return sample
+        y, u = sample
+    else:
+        sample = _configured(msg, settings)
+        if sample.__class__ is str:
+            return sample
+        y, u = sample
+    stamp = msg.header.stamp
+    t = stamp_seconds(stamp)
+    bad = stamp_check(stamp.sec, stamp.nanosec, t, settings, clock)
+    return bad if bad is not None else (t, y, u)
+
+
+def _configured(msg, settings: Mapping[str, Any]):
+    """(y, u) of the joint_states.* settings, or the reason."""
     names = list(msg.name)
     if len(set(names)) != len(names):
         return "joint_states_duplicate_name"
@@ -57,10 +77,7 @@ def joint_state_sample(msg, settings: Mapping[str, Any], clock: float | None = N
                   settings["joint_states.input_joints"], settings["joint_states.input_field"])
         if isinstance(u, str):
             return u
-    stamp = msg.header.stamp
-    t = stamp_seconds(stamp)
-    bad = stamp_check(stamp.sec, stamp.nanosec, t, settings, clock)
-    return bad if bad is not None else (t, y, u)
+    return y, u
 
 
 def stamp_check(sec: int, nanosec: int, t: float, settings: Mapping[str, Any],

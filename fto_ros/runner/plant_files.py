@@ -6,7 +6,8 @@ tuning files share).  It is not a tuning file itself.  Every other ``<system>_*.
 a tuning file; it runs with the plant file merged first (as ``--params-file plant
 --params-file tuning``) unless it carries a model of its own: a plant block of its own
 (``plant.states``), or one of the parameters its observer would derive from the plant (the
-explicit form, e.g. ``single_delay.A1``).  Other ``plant.*`` parameters amend the plant
+explicit form, e.g. ``single_delay.A1``), or the URDF of an arm's external-torque family
+(``plant.urdf``, ``robot_description``).  Other ``plant.*`` parameters amend the plant
 file's (config/arm7_hosm.yaml: the joint model without its Coulomb friction).  ``<system>`` is the longest prefix of the tuning file's name that has
 a plant file.  ROS-free.
 """
@@ -53,6 +54,8 @@ def plant_file_for(tuning: Path) -> Path | None:
     own = {f"{kind}.{k}" for k in DERIVES.get(kind, ())}
     if any(k == PREFIX + "states" or k in own for k in flat):
         return None
+    if any(k in ("plant.urdf", "robot_description") for k in flat):
+        return None                     # an arm family's model: its URDF
     return plant
 
 

@@ -22,7 +22,7 @@ integer, ``~`` None), which is why it is not used for values.
 
 Read defensively: anchors and aliases, nesting deeper than :data:`MAX_DEPTH`, lists
 longer than :data:`MAX_ITEMS` and mappings with more keys are refused as soon as the
-event stream shows them, before anything is built.  Test: ``test/test_ros_yaml.py``
+event stream shows them, before anything is built.  Test: ``test/unit/runner/test_ros_yaml.py``
 compares this reader with rcl's own (a node started on the same file).
 """
 from __future__ import annotations

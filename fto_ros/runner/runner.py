@@ -44,6 +44,7 @@ from . import joints as JX
 from . import layout as LY
 from . import settings as S
 from ..core import jit as J_
+from .arm_intake import arm_intake
 from .build import changed_names, design_guard
 from . import status as ST
 from .health import HealthWindow
@@ -103,15 +104,22 @@ class Runner:
         with design_guard(flat_params, changed):
             joints = flat_params.get("joints") or []
             flats = [dict(flat_params)]
-            if isinstance(joints, (list, tuple)) and joints and all(isinstance(j, str) for j in joints):
+            if isinstance(joints, (list, tuple)) and joints and not S.is_arm(flat_params) \
+                    and all(isinstance(j, str) for j in joints):
                 flats = JX.per_joint(flat_params, joints)
             parts = [S.split(f) for f in flats]
             self.settings, self.observer_class, self.observer_config = parts[0]
-            self.joints = list(self.settings["joints"])
+            arm = getattr(self.observer_class, "ARM", False)
+            #: an arm family's JointState intake (runner/arm_intake.py), else None
+            self.intake = None
+            self.joints = [] if arm else list(self.settings["joints"])
             type_name = self.settings["observer.type"]
             self.observers: list[KernelObserver] = [make(type_name, cfg) for _, _, cfg in parts]
             self.observer = obs = self.observers[0]
-            S.check_settings(self.settings, obs.n_states, obs.n_outputs, obs.n_inputs)
+            if arm:
+                self.intake = arm_intake(obs, self.settings)
+            else:
+                S.check_settings(self.settings, obs.n_states, obs.n_outputs, obs.n_inputs)
             self._roles = self._joint_roles(flats) if self.joints else None
         self._flat = dict(flat_params)
         self._update_us: deque[float] = deque(maxlen=2000)
@@ -213,7 +221,7 @@ class Runner:
             raise ConfigError("joints", "cannot be changed at run time; restart the node")
         new._configure(self)                     # the counters, inputs and held samples go on
         for k in ("settings", "observer_config", "observer", "observers", "_roles", "_arrays",
-                  "_prog", "_mem", "_js", "_one", "_joint_ev", "_flat"):
+                  "_prog", "_mem", "_js", "_one", "_joint_ev", "_flat", "intake"):
             setattr(self, k, getattr(new, k))
         for h in self._health:
             h.window = self.settings["diagnostics.window"]

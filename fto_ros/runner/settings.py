@@ -37,7 +37,14 @@ SETTINGS: tuple[Param, ...] = (
           "of each come from its entry in the JointState (joint_states.output_fields, "
           "input_fields), a constant may differ per joint ('name=[v1, ..., vJ]' in "
           "plant.constants). Empty: one observer over the plant (y and u as the other "
-          "joint_states.* settings say)"),
+          "joint_states.* settings say). For the arm's external-torque families "
+          "(external_torque, momentum_observer): the joints ONE observer estimates, in the "
+          "order of every output (empty: the arm's chain from its URDF)"),
+    Param("joint_overrides", "string_array", [], "per-joint mode (joints): observer parameters "
+          "that differ per joint, each 'section.name=[v_1, ..., v_J]' (one value per joint, "
+          "in the order of joints; a value is a number, or a list for an array parameter: "
+          "'joint_kalman.bandwidth=[30, 40, ...]', 'hosm.poles=[[-60, -70], ...]'); "
+          "fto-tune writes them", read_only=False),
     Param("joint_states.output_fields", "string_array", ["position"], "per-joint mode "
           "(joints): the JointState fields that give each joint's y, in the plant's output "
           "order", choices=FIELDS),
@@ -132,6 +139,28 @@ SETTINGS: tuple[Param, ...] = (
 ROS_BUILTIN = ("use_sim_time", "start_type_description_service")
 
 
+def is_arm(flat: Mapping[str, Any]) -> bool:
+    """Whether ``flat`` chooses a family that estimates an arm's external torques (one
+    observer over ``joints``, its plant the URDF: observers/arm_base.py)."""
+    cls = REGISTRY.get(flat.get("observer.type")) if isinstance(flat.get("observer.type"), str) \
+        else None
+    return bool(getattr(cls, "ARM", False))
+
+
+def _arm_observer(flat: Mapping[str, Any], cls) -> tuple[type, dict[str, Any], dict[str, Any]]:
+    """An arm family's (class, config, flat): its section, the arm parameters (``cfg['arm']``,
+    arm/params.py) and the joint list (``joints``)."""
+    section = cls.TYPE + "."
+    values = {k[len(section):]: v for k, v in flat.items() if k.startswith(section)}
+    cfg = resolve(cls.PARAMS, values, prefix=section)
+    cfg["arm"] = resolve(cls.ARM_PARAMS, {k: v for k, v in flat.items() if k in
+                                          {p.name for p in cls.ARM_PARAMS}})
+    joints = flat.get("joints") or []
+    cfg["joints"] = resolve([p for p in SETTINGS if p.name == "joints"], {"joints": joints})[
+        "joints"]
+    return cls, cfg, dict(flat)
+
+
 def _observer(flat: Mapping[str, Any], type_name: Any) -> tuple[type, dict[str, Any], dict[str, Any]]:
     """(registered class, typed config, flat parameters after the plant expansion) of
     observer ``type_name`` as configured by ``flat`` (its section, the plant block); a
@@ -140,6 +169,8 @@ def _observer(flat: Mapping[str, Any], type_name: Any) -> tuple[type, dict[str, 
     cls = observer_class(type_name)
     sub = dict(flat)
     sub["observer.type"] = type_name
+    if is_arm(sub):
+        return _arm_observer(sub, cls)
     if cls.CHILD_ROLES:                            # a composition: its children expand
         sub = {k: v for k, v in sub.items() if not k.startswith("plant.")}
     else:
@@ -170,8 +201,9 @@ def split(flat: Mapping[str, Any]) -> tuple[dict[str, Any], type, dict[str, Any]
                           + ", ".join(sorted(REGISTRY)) + ")")
     cls, obs_cfg, flat = _observer(flat, type_name)
     section = cls.TYPE + "."
+    arm = {p.name for p in getattr(cls, "ARM_PARAMS", ())}
     for k in flat:
-        if k in known or k.startswith(section) or k in ROS_BUILTIN:
+        if k in known or k in arm or k.startswith(section) or k in ROS_BUILTIN:
             continue
         if k.split(".", 1)[0] in REGISTRY:
             continue
@@ -185,6 +217,9 @@ def check_settings(settings: Mapping[str, Any], n_states: int, n_outputs: int, n
     x0 = settings["observer.initial_estimate"]
     if x0 and len(x0) != n_states:
         raise ConfigError("observer.initial_estimate", f"expected {n_states} values, got {len(x0)}")
+    if settings["joint_overrides"] and not settings["joints"]:
+        raise ConfigError("joint_overrides", "per-joint values need the per-joint mode: list the "
+                          "joints in 'joints' (or set the observer's parameters directly)")
     if settings["joints"]:
         if settings["source"] != "joint_states":
             raise ConfigError("source", "per-joint mode (joints) reads every joint from one "

@@ -136,6 +136,9 @@ def joint_status(runner, now: float | None, j: int) -> Status:
     if recent.get("rebase"):
         level = WARN
         problems.append("the outlier gate accepted a persisting change of the signal")
+    for warning in getattr(obs, "warnings", lambda: ())():   # the observer's own
+        level = max(level, WARN)
+        problems.append(warning)
     if state == "diverging":
         level = WARN
         problems.append("output residual above convergence.residual_threshold after the guaranteed time")

@@ -3,6 +3,7 @@
     fto-sweep --params FILE [--params FILE ...] --bag BAG [--bag BAG ...]
               --set NAME=V1,V2,... [--set ...] --out DIR
               [--baseline FILE[,FILE...] ...] [--workers N | --scheduler ADDRESS]
+              [--connect-timeout S]
               [--data shared|send] [--keep-runs] [--no-plots] [--overwrite]
 
 Every combination of the ``--set`` values (the params files merged in order, then the
@@ -17,8 +18,10 @@ Exit codes: 0 done (some runs may have been refused for their parameters), 2 bad
 or parameters (usage, a params file, a ``--set`` name or value, an ``--out`` that exists
 without ``--overwrite``, is or holds an input, or is not an earlier sweep's output, every
 run refused), 1 a bad bag or a run-time failure (a missing bag, a run that failed for its
-bag, an unreachable cluster), 130 interrupted.  One ``fto-sweep: error: ...`` line, never a traceback
-(``FTO_DEBUG=1`` shows the traceback of an unexpected error).
+bag, an unreachable cluster within ``--connect-timeout``, a scheduler lost during the sweep:
+the rows of the runs it did not finish say so, and the line follows the table), 130
+interrupted.  One ``fto-sweep: error: ...`` line, never a traceback (``FTO_DEBUG=1`` shows
+the traceback of an unexpected error, and distributed's own log lines).
 """
 from __future__ import annotations
 
@@ -40,9 +43,15 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _scheduler(text: str) -> str:
+    from ..core.errors import CommandLineError
+    from .cluster import SCHEMES, EngineError, split_address
     if not re.fullmatch(r"[a-z][a-z0-9+.-]*://\S+", text):
-        raise argparse.ArgumentTypeError(f"expected a Dask scheduler address such as "
+        raise CommandLineError(f"expected a Dask scheduler address such as "
                                          f"tcp://HOST:8786, got {text!r}")
+    try:
+        split_address(text)
+    except EngineError as err:
+        raise CommandLineError(f"{err} ({'/'.join(SCHEMES)}://HOST:PORT)") from None
     return text
 
 
@@ -76,7 +85,11 @@ def build_parser() -> argparse.ArgumentParser:
                             "in this process)")
     where.add_argument("--scheduler", type=_scheduler, default=None, metavar="ADDRESS",
                        help="run on the existing Dask cluster of this scheduler "
-                            "(tcp://HOST:PORT); every worker needs fto_ros installed")
+                            "(tcp://HOST:PORT, or tls://, ws://, wss://); every worker needs "
+                            "fto_ros installed")
+    p.add_argument("--connect-timeout", type=positive_float, default=None, metavar="S",
+                   help="seconds to wait for the scheduler to answer and for its cluster to "
+                        "have a worker (default 10)")
     p.add_argument("--data", choices=("shared", "send"), default="shared",
                    help="shared (default): workers open the bags and params files at their "
                         "absolute paths (this machine, or storage every worker mounts at the same "
@@ -131,7 +144,7 @@ def _sweep(args, progress) -> int:
     from ..core.output_dir import OutputError, OutputExists, check_output, create_output
     from ..runner.params_file import load_params_files
     from . import grid, plots, results
-    from .engine import Engine, EngineError, Lost
+    from .engine import CONNECT_TIMEOUT_S, Engine, EngineError, Lost
     from .tasks import RUNTIME, Outcome, Run, bag_size, execute, read_files
     from ..replay import DEFAULT_TOLERANCE
     if args.tolerance is None:
@@ -188,7 +201,8 @@ def _sweep(args, progress) -> int:
 
     t0 = time.perf_counter()
     try:
-        with Engine(workers=args.workers, scheduler=args.scheduler) as engine:
+        with Engine(workers=args.workers, scheduler=args.scheduler,
+                    connect_timeout=args.connect_timeout or CONNECT_TIMEOUT_S) as engine:
             files = sorted({r.bag_path for r in runs} | {p for r in runs for p in r.params_paths})
             if args.data == "shared":
                 for worker, missing in engine.missing_paths(files).items():
@@ -209,7 +223,7 @@ def _sweep(args, progress) -> int:
                 say(progress, f"{PROG}: {len(runs)} run(s) on {engine.description}")
             outcomes = engine.map(execute, arglists, costs=[costs[r.bag] for r in runs],
                                   on_done=on_done)
-            description = engine.description
+            description, lost = engine.description, engine.lost
     except EngineError as err:
         return _fail(1, str(err))
     wall = time.perf_counter() - t0
@@ -228,10 +242,15 @@ def _sweep(args, progress) -> int:
         if not args.no_plots:
             plots.write_all(out, axes, rows)
     except OSError as err:
-        return _fail(1, f"cannot write the results in {out}: {err}")
+        from ..core.output_dir import abandon
+        what = abandon(out, "sweep", f"{err.strerror or err}", keep=True)
+        return _fail(1, f"cannot write the results in {out}: {err.strerror or err}; {what}")
     print(text)
     print(f"wrote {out / 'results.csv'}, {out / 'summary.txt'}"
           + ("" if args.no_plots else f" and the figures in {out}"))
+    if lost is not None:
+        undone = sum(1 for o in outcomes if isinstance(o, Lost) and o.message.startswith("not run"))
+        return _fail(1, f"{lost}: {undone} of {len(runs)} run(s) not done (their rows say so)")
     return results.exit_code(rows)
 
 

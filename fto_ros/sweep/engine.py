@@ -20,8 +20,11 @@ finish is then a short one, which keeps every worker busy to the end).
   a new pool.
 - ``scheduler``: a :class:`distributed.Client` connected to the scheduler at that address;
   each task is one ``Client.submit`` (Dask schedules, retries on worker loss and moves the
-  data).  Before anything is submitted the engine checks that the cluster has workers, that
-  they can import ``fto_ros``, and (:meth:`Engine.missing_paths`) that they see the files.
+  data).  Before anything is submitted the engine reaches the scheduler (sweep/cluster.py:
+  every failure one :class:`EngineError` line within the connect timeout) and checks that
+  the cluster has workers, that they can import ``fto_ros``, and
+  (:meth:`Engine.missing_paths`) that they see the files.  A scheduler lost during the map
+  ends it at once: the tasks not done are :class:`Lost`, and :attr:`Engine.lost` says why.
 """
 from __future__ import annotations
 
@@ -35,17 +38,14 @@ from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
 from ..core.command_line import one_line
-from ..core.errors import FtoRosError
+from .cluster import EngineError, client, quiet_dask, reach
 
-#: seconds to wait for the scheduler to answer, and for a cluster to have a worker
-CONNECT_TIMEOUT_S = 30.0
+#: seconds to wait for the scheduler to answer, and for a cluster to have a worker (the
+#: default of fto-sweep's --connect-timeout)
+CONNECT_TIMEOUT_S = 10.0
+
 #: modules a forkserver imports once, before it forks the local workers
 PRELOAD = ["fto_ros.replay.replay", "fto_ros.sweep.tasks"]
-
-
-class EngineError(FtoRosError):
-    """The engine cannot run anything (scheduler unreachable, no worker, workers without
-    fto_ros, files the workers cannot see).  One line."""
 
 
 @dataclass(frozen=True)
@@ -121,13 +121,17 @@ def _missing(paths: Sequence[str]) -> list[str]:
 class Engine:
     """Runs tasks in this process, in local worker processes or on a Dask cluster."""
 
-    def __init__(self, workers: int | None = None, scheduler: str | None = None):
+    def __init__(self, workers: int | None = None, scheduler: str | None = None,
+                 connect_timeout: float = CONNECT_TIMEOUT_S):
         if workers is not None and workers < 1:
-            raise ValueError(f"workers must be >= 1, got {workers}")
+            raise EngineError(f"workers must be >= 1, got {workers}")
         self.scheduler = scheduler
         self.workers = workers or default_workers()
+        self.connect_timeout = float(connect_timeout)
         self.client = None
         self._n_cluster_workers = 0
+        #: why a map ended early (the scheduler was lost), else None
+        self.lost: str | None = None
 
     # -- connection --------------------------------------------------------------------
     def __enter__(self) -> "Engine":
@@ -142,24 +146,21 @@ class Engine:
         if self.client is not None:
             client, self.client = self.client, None
             try:
-                client.close(timeout=10)
+                client.close(timeout=self.connect_timeout)
             except Exception:  # noqa: BLE001  closing a lost connection: nothing left to do
                 pass
 
     def _connect(self) -> None:
-        from distributed import Client
-        address = self.scheduler
+        address, timeout = self.scheduler, self.connect_timeout
+        reach(address, timeout)    # refused, unreachable, unknown: one line within the timeout
+        quiet_dask()
+        self.client = client(address, timeout)
         try:
-            self.client = Client(address, timeout=CONNECT_TIMEOUT_S, set_as_default=False)
-        except (OSError, TimeoutError, ValueError) as err:
-            raise EngineError(f"cannot connect to the Dask scheduler at {address}: "
-                              f"{one_line(err)}") from None
-        try:
-            self.client.wait_for_workers(1, timeout=CONNECT_TIMEOUT_S)
+            self.client.wait_for_workers(1, timeout=timeout)
         except (OSError, TimeoutError) as err:
             self.close()
             raise EngineError(f"the Dask cluster at {address} has no worker (waited "
-                              f"{CONNECT_TIMEOUT_S:g} s): {one_line(err) or 'timeout'}") from None
+                              f"{timeout:g} s): {one_line(err) or 'timeout'}") from None
         answers = self.client.run(_missing, [], on_error="return")
         for worker, answer in answers.items():
             if isinstance(answer, BaseException):
@@ -285,17 +286,27 @@ class Engine:
         futures = {self.client.submit(fn, *arglists[i], pure=False, priority=n - rank): i
                    for rank, i in enumerate(order)}
         results: list = [None] * n
+        finished: set[int] = set()
         try:
             for f in as_completed(futures, loop=self.client.loop):
                 i = futures[f]
                 try:
                     results[i] = f.result()
                 except (Exception, asyncio.CancelledError) as err:  # noqa: BLE001
+                    if self.client.status != "running":       # the scheduler is gone
+                        self.lost = (f"lost the connection to the Dask scheduler at "
+                                     f"{self.scheduler} (status {self.client.status})")
+                        break
                     results[i] = Lost(f"the cluster could not run it: {_lost(err).message}")
                 f.release()
+                finished.add(i)
                 done(i, results[i])
         finally:
             for f in futures:
                 if not f.done():
                     f.cancel()
+        if self.lost is not None:
+            for i in sorted(set(range(n)) - finished):
+                results[i] = Lost(f"not run: {self.lost}")
+                done(i, results[i])
         return results

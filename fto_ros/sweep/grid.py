@@ -13,7 +13,7 @@ import itertools
 from dataclasses import dataclass
 from typing import Any, Iterable, Mapping, Sequence
 
-from ..core.errors import ConfigError, short
+from ..core.errors import BadArgument, ConfigError, short
 from ..runner.params_file import parse_override
 
 _OPEN, _CLOSE = "[{(", "]})"
@@ -44,12 +44,12 @@ def split_values(text: str) -> list[str]:
         elif ch in _CLOSE:
             depth -= 1
             if depth < 0:
-                raise ValueError(f"unbalanced '{ch}'")
+                raise BadArgument(f"unbalanced '{ch}'")
         elif ch == "," and depth == 0:
             pieces.append(text[start:i].strip())
             start = i + 1
     if quote or depth:
-        raise ValueError("unbalanced quote" if quote else "unclosed bracket")
+        raise BadArgument("unbalanced quote" if quote else "unclosed bracket")
     pieces.append(text[start:].strip())
     return pieces
 

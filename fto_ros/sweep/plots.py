@@ -106,7 +106,7 @@ def error_vs_parameter(path: Path, axis: Axis, rows: Sequence[dict]) -> Path:
         title += f"\nx: {failed} run(s) failed or without error metrics"
     ax.set_title(title, fontsize=9)
     ax.grid(True, which="both", alpha=0.3)
-    if bags:
+    if bags and ax.get_legend_handles_labels()[0]:
         ax.legend(fontsize=7, loc="best")
     fig.tight_layout()
     fig.savefig(path, format="png")
@@ -167,7 +167,8 @@ def _pareto_panel(ax, points: Sequence[tuple[str, float, float]],
     _annotate(ax, [(label, x_of(c), e) for label, c, e in named])
     ax.set_title(title + ("" if points else ": no setting ran with ground truth"), fontsize=8)
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=6, loc="best")
+    if ax.get_legend_handles_labels()[0]:          # (matplotlib warns on an empty legend)
+        ax.legend(fontsize=6, loc="best")
 
 
 def _annotate(ax, named: Sequence[tuple[str, float, float]]) -> None:

@@ -43,7 +43,7 @@ import sympy
 from ...core.model_code import ModelFunction
 from ...core.named_model import parse_model
 from .. import kernel as K
-from ..base import ConfigError, KernelObserver, Param
+from ..base import ConfigError, KernelObserver, Param, RestartCovariance
 from . import kernel
 from .kernel import MAX_SUBSTEPS, SUB_STEP
 
@@ -52,7 +52,7 @@ P = "ekf."
 __all__ = ["ExtendedKalmanFilter", "MAX_SUBSTEPS"]
 
 
-class ExtendedKalmanFilter(KernelObserver):
+class ExtendedKalmanFilter(RestartCovariance, KernelObserver):
     TYPE = "ekf"
     KERNEL = kernel
     DESCRIPTION = ("continuous-discrete extended Kalman filter: the baseline for nonlinear plants "
@@ -126,15 +126,6 @@ class ExtendedKalmanFilter(KernelObserver):
         n = self.n_states
         o = SUB_STEP + 1 + n * n + self.n_outputs ** 2
         return self._c[o:o + n * n].reshape(n, n)
-
-    @property
-    def P0(self) -> np.ndarray:
-        """The covariance every (re)start begins with (a copy; assign to change it)."""
-        return self._p0().copy()
-
-    @P0.setter
-    def P0(self, value) -> None:
-        self._p0()[:] = np.asarray(value, dtype=float).reshape(self.n_states, self.n_states)
 
     @property
     def covariance(self) -> np.ndarray:

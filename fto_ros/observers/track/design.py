@@ -57,7 +57,9 @@ from ..ekf import ExtendedKalmanFilter
 
 P = "track."
 ACQUIRERS = ("single_delay", "prescribed_time", "hosm", "newton_inversion", "global_norm")
-TRACKERS = ("luenberger", "ekf")
+#: a tracker is a compiled Kalman filter: st[HEALTH] its NIS, ``R`` its per-sample
+#: measurement covariance, ``P0`` its (re)start covariance (settable: the hand-over's)
+TRACKERS = ("luenberger", "ekf", "joint_kalman")
 ACQUIRING, TRACKING, REACQUIRING = 0, 1, 2
 MODE_NAMES = {ACQUIRING: "acquiring", TRACKING: "tracking", REACQUIRING: "re-acquiring"}
 #: samples of measurement noise the acquirer's noise covariance is measured on (after its
@@ -212,7 +214,7 @@ class TrackDesign(Observer):
 def _kalman_tracker(make: Make, type_name: str, cfg: dict,
                     sample_period: float) -> ExtendedKalmanFilter:
     """The tracker: the ekf as configured, or the Kalman filter of a luenberger section."""
-    if type_name == "ekf":
+    if type_name != "luenberger":                  # a Kalman filter already (TRACKERS)
         return make(type_name, cfg)
     if cfg["design"] != "kalman":
         raise ConfigError(P + "tracker", "a luenberger tracker needs luenberger.design: kalman "

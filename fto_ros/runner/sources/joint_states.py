@@ -1,6 +1,7 @@
 """``source: joint_states`` without ``joints``: one observer of the whole plant, y from the
 ``joint_states.output_field`` of ``joint_states.output_joints`` and u from the
-``input_field`` of ``input_joints``, by name, stamped with the header stamp (the rule:
+``input_field`` of ``input_joints`` (an arm family: its intake's joints,
+runner/arm_intake.py), by name, stamped with the header stamp (the rule:
 runner/messages.py ``joint_state_sample``).  A message with inputs is two rows: its input,
 then its measurement PAIRED with it (skipped when that input is refused: never paired with
 a bad u).  The JointState decoding (core/cdr.py, the fallback for the rest) is shared with
@@ -83,9 +84,11 @@ class WholeJointStateSource(JointStateSource):
     def __init__(self, runner, fallback=None):
         super().__init__(runner, fallback)
         self.plan = whole_plant_plan(runner)
+        if runner.intake is not None:     # an arm's truth: JointStates, by joint name
+            self.truth_msgtype = JOINT_STATE
 
     def rows(self, key, payloads, recv_ns, sent_ns, clock) -> Rows:
-        settings = self.runner.settings
+        settings, intake = self.runner.settings, self.runner.intake   # an arm's: by name
         M = len(payloads)
         samples: list = [None] * M
         stamps = np.zeros(M, np.int64)
@@ -99,7 +102,7 @@ class WholeJointStateSource(JointStateSource):
                 one = js._replace(sec=int(sec[i]), nanosec=int(nsec[i]), position=js.position[i],
                                   velocity=js.velocity[i], effort=js.effort[i])
                 samples[m0 + i] = joint_state_sample(
-                    one, settings, None if clock is None else float(clock[m0 + i]))
+                    one, settings, None if clock is None else float(clock[m0 + i]), intake)
         count = np.array([2 if s.__class__ is tuple and len(s) == 3 and s[2] is not None else 1
                           for s in samples], np.int64)
         rows = paired_rows(count, 1, self.width)

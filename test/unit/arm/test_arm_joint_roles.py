@@ -54,15 +54,15 @@ def test_mimic_joints_follow_their_parent():
 
 
 @pytest.mark.parametrize("joints, locked, param, words", [
-    (["joint_1", "finger_2"], None, "plant.joints", "finger_2 follows finger_1"),
+    (["joint_1", "finger_2"], None, "joints", "finger_2 follows finger_1"),
     (ARM, {"finger_2": 0.02}, "plant.locked_joints", "finger_2 follows finger_1 (<mimic>): "
                                                      "it can be locked only where finger_1 "
                                                      "puts it (0.01)"),
     (["joint_1", "finger_1"], {"finger_2": 0.01}, "plant.locked_joints",
      "only where finger_1 puts it (finger_1 moves)"),
-    (ARM + ["tcp_joint"], None, "plant.joints", "tcp_joint (a fixed joint)"),
+    (ARM + ["tcp_joint"], None, "joints", "tcp_joint (a fixed joint)"),
     (ARM, {"finger_1": float("inf")}, "plant.locked_joints", "finger_1: the position"),
-    (ARM, {"joint_1": 0.0}, "plant.locked_joints", "joint_1 are also in plant.joints"),
+    (ARM, {"joint_1": 0.0}, "plant.locked_joints", "joint_1 are also in joints"),
 ])
 def test_joint_lists_are_refused_naming_the_joints(joints, locked, param, words):
     with pytest.raises(ConfigError) as err:

@@ -51,6 +51,31 @@ def test_a_mass_that_is_not_finite_and_positive(mass):
     refused(two_links(m1=mass), "link 'l1'", "mass")
 
 
+def test_a_massless_frame_is_accepted_and_a_massless_body_refused():
+    """Mass 0 with a zero inertia tensor is a frame (as if it had no <inertial>); mass 0 with
+    any other tensor is refused naming the link."""
+    frame = '<inertial><mass value="0"/><inertia ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"/></inertial>'
+    text = ('<robot name="r">' + link("base", frame) + joint("j1", "revolute", "base", "l1")
+            + link("l1", inertial(1.0, (0, 0, 0.1))) + "</robot>")
+    m = load_model(None, robot_description=text)
+    assert m.robot.links["base"] is None and m.mass_matrix([0.3])[0, 0] > 0
+    refused(text.replace('ixx="0"', 'ixx="0.01"'), "link 'base'", "non-zero inertia tensor")
+
+
+@pytest.mark.parametrize("kind", ["floating", "planar"])
+def test_a_floating_or_planar_joint_is_fixed_at_its_neutral_pose_with_a_note(kind):
+    """A mobile base under the arm: its joint is read as fixed at its origin, and said."""
+    base = structure(link("world"), link("base"), L1,
+                     joint("base_joint", kind, "world", "base"),
+                     joint("j1", "revolute", "base", "l1"))
+    m = load_model(None, robot_description=base)
+    assert m.joints == ("j1",) and m.robot.joint("base_joint").kind == "fixed"
+    assert any("base_joint" in n and kind in n and "fixed" in n for n in m.robot.notes)
+    plain = structure(link("base"), L1, joint("j1", "revolute", "base", "l1"))
+    assert np.allclose(m.mass_matrix([0.4]), load_model(None, robot_description=plain)
+                       .mass_matrix([0.4]))
+
+
 def test_every_mass_zero():
     text = ('<robot name="r">' + link("base") + joint("j1", "revolute", "base", "l1")
             + link("l1") + "</robot>")
@@ -145,8 +170,6 @@ L2 = link("l2", inertial(1.0, (0, 0, 0.1)))
                joint("j1", "revolute", "l1", "l2")), "joint 'j1' is defined twice"),
     (structure(link("base"), L1, joint("j1", "revolute", "base", "nowhere")),
      "joint 'j1': there is no link 'nowhere'"),
-    (structure(link("base"), L1, joint("j1", "floating", "base", "l1")),
-     "joint 'j1' is floating"),
     (structure(link("base"), L1, joint("j1", "screw", "base", "l1")), "unknown type 'screw'"),
     (structure(link("base"), L1, L2, joint("j1", "revolute", "base", "l1"),
                joint("j2", "revolute", "l1", "l2", extra='<mimic joint="nope"/>')),
@@ -172,14 +195,17 @@ def test_structures_that_are_no_arm(text, words):
 def test_the_joint_cap_and_the_windows_memory():
     """F16: more joints than configure in about 2 s and 200 MB are refused before anything
     is built; so is a window estimator whose ring would outgrow its budget."""
+    from arm_families import observer
     from arm_urdfs import chain
-    from fto_ros.arm.external_torque import MAX_WINDOW_BYTES, DesignRefused, WindowEstimator
     from fto_ros.arm.urdf import MAX_JOINTS
+    from fto_ros.observers.external_torque import kernel
+    from fto_ros.observers.external_torque.adapter import MAX_WINDOW_BYTES
     assert load_model(None, robot_description=chain(MAX_JOINTS)).n == MAX_JOINTS
     refused(chain(MAX_JOINTS + 1), f"{MAX_JOINTS + 1} joints: more than the {MAX_JOINTS}")
-    m = load_model(None, robot_description=chain(60))
-    WindowEstimator(m, window=0.06)
-    W = MAX_WINDOW_BYTES // (8 * (5 * 60 + 2 * 60 ** 2)) - 1      # the longest that fits
-    WindowEstimator(m, window=(W - 1) * 1e-3)
-    with pytest.raises(DesignRefused, match="MiB, more than the 64 MiB"):
-        WindowEstimator(m, window=(W + 1) * 1e-3)
+    text = chain(60)
+    slot = kernel.slot_offsets(60, 0)[-1]
+    W = MAX_WINDOW_BYTES // (8 * slot) - 1                   # the longest that fits
+    assert observer("external_torque", text=text, external_torque__window=(W - 1) * 1e-3)
+    with pytest.raises(ConfigError, match="MiB, more than the 64 MiB") as err:
+        observer("external_torque", text=text, external_torque__window=(W + 1) * 1e-3)
+    assert err.value.parameter == "external_torque.window"
