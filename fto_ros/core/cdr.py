@@ -367,7 +367,8 @@ class JointStateDecoder:
             while j < total and self._same(payloads[j], lay):
                 j += 1
             self.fast += j - i - 1
-            joined = np.frombuffer(b"".join(payloads[i:j]), np.uint8).reshape(j - i, lay.length)
+            joined = np.frombuffer(b"".join(payloads[m] for m in range(i, j)),  # any Sequence
+                                   np.uint8).reshape(j - i, lay.length)
             runs.append(_run(lay, joined))
             i = j
         return runs
