@@ -55,7 +55,7 @@ class TopicsSource(Source):
         M = len(payloads)
         rows = one_row_each(M, 1, self.width)
         recv = np.asarray(recv_ns, dtype=np.int64)
-        rows.t[:] = recv * 1e-9
+        rows.t[:] = recv / 1e9        # the replay's and the golden master's ns -> s (not * 1e-9)
         rows.stamp_ns[:] = recv
         rows.owner_ns[:] = sent_ns
         block = decode_float_block(payloads) if M > 1 else None
