@@ -21,7 +21,7 @@ from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.msg import get_types_from_msg
 
-from ..core.errors import BagError
+from ..core.errors import BagError, short
 
 
 class TopicInfo(NamedTuple):
@@ -62,6 +62,16 @@ def shared_typestore():
     serialiser once per typestore, ~10-50 ms each, so every bag written in a process
     shares them."""
     return jazzy_typestore()
+
+
+def deserialize(typestore, payload, msgtype: str, where: str, k: int):
+    """One raw CDR message through rosbags (what the numpy codec, core/cdr.py, does not
+    take: big endian, XCDR2), or BagError naming where it is."""
+    try:
+        return typestore.deserialize_cdr(bytes(payload), msgtype)
+    except Exception as exc:  # rosbags raises SerdeError, struct.error, IndexError ...
+        raise BagError(f"{where}: cannot decode message {k} as {msgtype}: "
+                       f"{type(exc).__name__}: {short(exc)}") from None
 
 
 def _describe(err: BaseException) -> str:

@@ -6,7 +6,7 @@ momentum_observer): mixed into ObserverCore.
   as robot_state_publisher latches it): the node logs that it waits, and configures when
   the text arrives (a text the arm's checks refuse is logged, and the node waits for
   another); a later, different text is logged and not used (restart the node).
-- **The arm's outputs** (nodes/arm_outputs.py) beside every observer's, and the service
+- **The arm's outputs** (nodes/arm_outputs.py) beside the plan's, on the one publisher, and the service
   ``~/reset_collision`` (std_srvs/Trigger) that clears the latched collisions.
 - **The payload at run time**: a change of ``payload.*`` alone goes into the running
   estimator (the tree's rows in its kernel's constants; the window's history is evaluated
@@ -92,9 +92,9 @@ class ArmCore:
         log = self.get_logger()
         for note in runner.observer.notes:
             log.info("URDF note: " + note)
-        self._arm = ArmOutputs(self.create_publisher, runner, log.info)
+        self._arm = ArmOutputs(self._out.create, runner, log.info)
         srv = self.create_service(Trigger, "~/reset_collision", self._on_reset_collision)
-        return self._arm.publishers + [srv]
+        return self._out.add(self._arm) + [srv]
 
     def _on_reset_collision(self, request, response):
         cleared = self._runner.observer.reset_collision()

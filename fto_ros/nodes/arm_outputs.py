@@ -1,5 +1,6 @@
 """What the observer node publishes for an arm's external-torque family, beside the outputs
-every observer has (nodes/outputs.py), each stamped with the measurement's stamp:
+every observer has (the source's plan, nodes/publisher.py, which publishes these with it
+on its QoS), each stamped with the measurement's stamp:
 
 - ``~/external_torque`` (sensor_msgs/JointState): name = the joints, position and velocity
   = the estimate x = [q, v], effort = tau_ext (Nm), once the estimator has one;
@@ -25,7 +26,6 @@ from geometry_msgs.msg import WrenchStamped
 from sensor_msgs.msg import JointState
 
 from ..arm import detect as DT
-from .outputs import OUT_QOS
 
 try:                                   # a ROS install has it; no pip wheel does
     from control_msgs.msg import DynamicJointState, InterfaceValue
@@ -38,22 +38,23 @@ INTERFACES = ("external_torque", "contact", "collision", "lower_level", "upper_l
 class ArmOutputs:
     """The arm topics of one runner (module doc)."""
 
-    def __init__(self, create_publisher, runner, log):
+    def __init__(self, create, runner, log):
+        """``create(message class, topic)``: nodes/publisher.py's ``Publisher.create``."""
         obs = runner.observer
         self.obs, self.n = obs, obs.n_joints
         self.joints = list(obs.joints)
         self.base = runner.convergence_fields.index("tau_ext_valid")
-        self.torque = create_publisher(JointState, "~/external_torque", OUT_QOS)
-        self.contact = create_publisher(JointState, "~/contact", OUT_QOS)
-        self.collision = create_publisher(JointState, "~/collision", OUT_QOS)
+        self.torque = create(JointState, "~/external_torque")
+        self.contact = create(JointState, "~/contact")
+        self.collision = create(JointState, "~/collision")
         self.frame = obs.arm["wrench.frame"]
         self.wrench = self.wrench_frame = None
         if self.frame:
-            self.wrench = create_publisher(WrenchStamped, "~/wrench", OUT_QOS)
-            self.wrench_frame = create_publisher(WrenchStamped, "~/wrench_frame", OUT_QOS)
+            self.wrench = create(WrenchStamped, "~/wrench")
+            self.wrench_frame = create(WrenchStamped, "~/wrench_frame")
         self.extras = None
         if DynamicJointState is not None:
-            self.extras = create_publisher(DynamicJointState, "~/joint_extras", OUT_QOS)
+            self.extras = create(DynamicJointState, "~/joint_extras")
         else:
             log("control_msgs is not importable (no pip wheel has it; a ROS install does): "
                 "~/joint_extras (DynamicJointState) is not published, the per-joint values "
@@ -74,20 +75,21 @@ class ArmOutputs:
         msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
         return msg
 
-    def publish(self, out, sec: int, nanosec: int) -> None:
-        """The arm topics of one runner Output."""
+    def publish(self, ok, x, tau, conv, sec: int, nanosec: int) -> None:
+        """The arm topics of one sample: the plan's rows (one joint row: the arm is one
+        observer) of the estimate x, the external torque tau and the convergence values."""
+        if not ok[0]:
+            return
+        x, tau, conv = x[0], tau[0], conv[0]
         n, b = self.n, self.base
-        conv = out.convergence
         valid = conv[b + DT.X_VALID] > 0.5
         flags = conv[b + DT.X_HEAD:b + DT.X_HEAD + n]
         latched = conv[b + DT.X_HEAD + n:b + DT.X_HEAD + 2 * n]
-        tau = out.unknown_input
         rose = np.flatnonzero((flags > 0.5) & (self._flags < 0.5))
         new = np.flatnonzero((latched > 0.5) & (self._latched < 0.5))
         self._flags, self._latched = flags.copy(), latched.copy()
         if not valid:
             return
-        x = out.estimate
         if self.wanted.get(self.torque):
             self.torque.publish(self._joint_state(sec, nanosec, self.joints, x[:n], x[n:], tau))
         if rose.size:

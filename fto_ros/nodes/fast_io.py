@@ -12,7 +12,7 @@ node"); what this module offers is what won there:
   callback for both executors; it supports no guard conditions (neither the observer
   node nor rclpy's Node create any).
 - :class:`JointStateIntake`: a raw (serialised) subscription decoded with numpy
-  (``runner/joint_state_cdr.py``): per message, or every message waiting in the
+  (``core/cdr.py``): per message, or every message waiting in the
   subscription in one call (``on_block``).  A payload the decoder does not take (big
   endian, XCDR2, ...) goes through rclpy's deserialiser, the reference; one that fails
   there too is counted in ``rejected`` and handed to ``on_reject`` with the reason, never
@@ -32,9 +32,10 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 
-from ..runner.joint_state_cdr import JointStateArrays, JointStateDecoder, JointStateEncoder
-from .outputs import OUT_QOS
-from ..core.errors import BadArgument
+from ..core.cdr import JointStateArrays, JointStateDecoder, JointStateEncoder, stamp_ns
+from ..core.errors import BadArgument, DecodeError
+from ..runner.sources.base import from_message
+from .publisher import OUT_QOS
 
 EXECUTORS = ("events", "single")
 
@@ -89,17 +90,6 @@ class message_info_callback:  # noqa: N801 (used like a decorator)
         return self.fn(*args)
 
 
-def _from_message(msg) -> JointStateArrays:
-    """An rclpy JointState (the fallback's result) as the decoder's tuple."""
-    def arr(values) -> np.ndarray:
-        a = np.array(values, dtype=np.float64)
-        a.flags.writeable = False
-        return a
-    st = msg.header.stamp
-    return JointStateArrays(st.sec, st.nanosec, msg.header.frame_id, tuple(msg.name),
-                            arr(msg.position), arr(msg.velocity), arr(msg.effort))
-
-
 def decode_payload(decoder: JointStateDecoder, payload: bytes
                    ) -> tuple[JointStateArrays | None, str]:
     """One serialised JointState: ``(arrays, "numpy")`` by ``decoder``, ``(arrays, "rclpy")``
@@ -107,20 +97,20 @@ def decode_payload(decoder: JointStateDecoder, payload: bytes
     reason)`` when neither takes it (``undecodable_joint_state: <error type>``)."""
     try:
         return decoder.decode(payload), "numpy"
-    except ValueError:
+    except DecodeError:
         pass
     try:
         msg = deserialize_message(payload, JointState)
     except Exception as exc:  # rclpy raises RuntimeError / its own types; never into the executor
         return None, f"undecodable_joint_state: {type(exc).__name__}"
-    return _from_message(msg), "rclpy"
+    return from_message(msg), "rclpy"
 
 
 class JointStateIntake:
     """A raw JointState subscription handing numpy arrays; see the module docstring.
 
     ``on_message(js)``: called once per message with a
-    :class:`~fto_ros.runner.joint_state_cdr.JointStateArrays` (stamp, frame_id, names,
+    :class:`~fto_ros.core.cdr.JointStateArrays` (stamp, frame_id, names,
     read-only float64 arrays).  Or ``on_block(runs)`` instead, once per
     executor callback with every message waiting then: ``runs`` is a list of
     ``(stamps_ns, js)`` where consecutive messages of one layout (names, lengths) share
@@ -187,8 +177,8 @@ class JointStateIntake:
         self.received += len(payloads)
         self.callbacks += 1
         try:
-            runs = self.decoder.decode_block(payloads)
-        except ValueError:   # one odd payload: each on its own (fallback, rejection)
+            runs = [(stamp_ns(sec, nsec), js) for sec, nsec, js in self.decoder.decode_block(payloads)]
+        except DecodeError:   # one odd payload: each on its own (fallback, rejection)
             runs = []
             for p in payloads:
                 js = self.decode(p)

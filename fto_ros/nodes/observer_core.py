@@ -4,23 +4,26 @@ managed (lifecycle) node, so both behave the same on their topics.
 Everything numerical happens in :class:`fto_ros.runner.Runner`, the same code the
 offline replay runs; this mixin only
 
-- declares the parameters (``parameters.py``) and builds the runner (``configure``);
-- opens and closes the node's entities (``open``/``close``): subscriptions, outputs
-  (``outputs.py``), services, the /diagnostics timer and the clock jump callback;
-- turns messages into ``(t, y, u)`` samples and outputs into messages stamped with
-  the measurement time (JointState: its header stamp; Float64MultiArray: the node
-  clock at its receipt, ``receipt_clock.py``);
+- declares the parameters (``parameters.py``), builds the runner and chooses the source
+  once (``configure``; runner/sources/: the input mode's topics, intake and output plan);
+- opens and closes the node's entities (``open``/``close``): a raw subscription per topic
+  of the source, the publisher of its plan (``publisher.py``), services, the /diagnostics
+  timer and the clock jump callback;
+- per message (``_on_payload``, the same for every mode): the topic's owner
+  (topic_owner.py), the source's rows of the payload (its decoding and intake checks; a
+  Float64MultiArray stamped with the node clock at its receipt, ``receipt_clock.py``, a
+  JointState with its header stamp, checked against the wall clock), the old timeline
+  after a clock jump, ``Runner.process_rows``, and the plan's outputs of the joints with
+  one, stamped with the measurement time;
 - offers ``~/reset``, ``~/enable`` and ``~/set_state`` (service and topic;
   observer_services.py) and restarts the observer when the ROS clock jumps back (bag
   loop, sim restart).
-
-In per-joint mode (``joints``) the JointState intake, the outputs, ``~/set_state`` and the
-per-joint /diagnostics statuses are joints_core.py's.
 """
 from __future__ import annotations
 
 import time
 
+import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rcl_interfaces.srv import SetParameters
 from rclpy.clock import Clock, ClockType, JumpThreshold
@@ -29,20 +32,21 @@ from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
 
-from ..core.errors import ConfigError
-from ..runner.messages import joint_state_sample
-from ..runner.runner import HELD, Runner
+from ..core.errors import ConfigError, DecodeError
+from ..runner import loop as L
+from ..runner.runner import HELD, Runner, reason
+from ..runner.sources import make_source
 from .arm_core import ArmCore
-from .joints_core import JointsCore
-from .outputs import REFRESH_S, Outputs, diagnostic_array
+from .fast_io import message_info_callback
+from .publisher import MESSAGE_CLASS, REFRESH_S, Publisher
 from .parameters import NodeParameters, check_declared
 from .receipt_clock import ReceiptClock
 from .observer_services import ObserverServices
-from .sources import SECOND_SOURCE, SOURCE_CHANGE, SourceTracker
+from .topic_owner import SECOND_SOURCE, SOURCE_CHANGE, TopicOwner
 
 _NS = 1_000_000_000
 #: how often at most a summary of rejected samples is logged (s)
@@ -55,7 +59,16 @@ SERVICE_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=Reliability
                          durability=DurabilityPolicy.VOLATILE)
 
 
-class ObserverCore(ArmCore, JointsCore, ObserverServices):
+def rclpy_fallback(payload: bytes, msgtype: str, key: str):
+    """The node's reference deserialiser for what the numpy codec does not take (big endian,
+    XCDR2); DecodeError naming rclpy's error for what it refuses too."""
+    try:
+        return deserialize_message(payload, MESSAGE_CLASS[msgtype])
+    except Exception as exc:  # rclpy raises RuntimeError / its own types; never into the executor
+        raise DecodeError(f"{type(exc).__name__}") from None
+
+
+class ObserverCore(ArmCore, ObserverServices):
     """The observer behaviour of a node (``self`` is an rclpy Node or LifecycleNode)."""
 
     _runner: Runner | None = None
@@ -74,6 +87,7 @@ class ObserverCore(ArmCore, JointsCore, ObserverServices):
 
     def _configured(self, runner: Runner) -> None:
         self._runner = runner
+        self._source = make_source(runner, rclpy_fallback)
         self._received = {"measured_output": 0, "input": 0, "joint_states": 0}
         self._published = 0
         self._dropped_disabled = 0
@@ -113,41 +127,32 @@ class ObserverCore(ArmCore, JointsCore, ObserverServices):
                             reliability=ReliabilityPolicy.BEST_EFFORT,
                             durability=DurabilityPolicy.VOLATILE)
 
-        self._sources: dict[str, SourceTracker] = {}
+        self._owners: dict[str, TopicOwner] = {}
         self._lost_events: dict[str, int] = {}
-
-        def subscription(key, mtype, topic, callback, raw=False):
+        self._stamper = ReceiptClock(self)   # before the data subscriptions: first in a round
+        self._refresh_sim_time()
+        self._out = Publisher(self.create_publisher, self._source.plan)
+        ent += self._out.publishers
+        # in the source's order (inputs first: when u_k and y_k wait in the same executor
+        # round, u_k must be stored before y_k is processed)
+        for topic in self._source.topics:
+            key = topic.key
             self._lost_events[key] = 0
 
             def lost(event, key=key):       # the middleware's count (transport losses only)
                 self._lost_events[key] = event.total_count
             sub = self.create_subscription(
-                mtype, topic, callback, in_qos,
+                MESSAGE_CLASS[topic.msgtype], s[topic.setting],
+                message_info_callback(lambda payload, info, key=key: self._on_payload(
+                    key, payload, info)), in_qos,
                 qos_overriding_options=QoSOverridingOptions.with_default_policies(),
                 event_callbacks=SubscriptionEventCallbacks(message_lost=lost,
                                                            use_default_callbacks=False),
-                raw=raw)
+                raw=True)
             name = sub.topic_name
-            self._sources[key] = SourceTracker(lambda: self.count_publishers(name),
-                                               s["time.max_gap"], s["time.jump_threshold"])
-            return sub
-        self._stamper = ReceiptClock(self)   # before the data subscriptions: first in a round
-        if runner.joints:                    # per-joint mode (joints_core.py)
-            ent += self._open_joints(subscription)
-        else:
-            self._out = Outputs(self.create_publisher, obs, s)
-            ent += self._out.publishers
-            if s["source"] == "topics":
-                # input first: when u_k and y_k wait in the same executor round, u_k must be
-                # stored before y_k is processed (u given at t holds from t on)
-                if obs.n_inputs > 0:
-                    ent.append(subscription("input", Float64MultiArray, s["topics.input"],
-                                            self._on_input))
-                ent.append(subscription("measured_output", Float64MultiArray,
-                                        s["topics.measured_output"], self._on_measured_output))
-            else:
-                ent.append(subscription("joint_states", JointState, s["topics.joint_states"],
-                                        self._on_joint_states))
+            self._owners[key] = TopicOwner(lambda name=name: self.count_publishers(name),
+                                           s["time.max_gap"], s["time.jump_threshold"])
+            ent.append(sub)
         ent.append(self.create_subscription(JointState, "~/set_state", self._on_set_state_topic, 10))
         ent.append(self.create_service(Trigger, "~/reset", self._on_reset, qos_profile=SERVICE_QOS))
         ent.append(self.create_service(SetBool, "~/enable", self._on_enable, qos_profile=SERVICE_QOS))
@@ -165,12 +170,12 @@ class ObserverCore(ArmCore, JointsCore, ObserverServices):
         return ent
 
     def _refresh(self) -> None:
-        """Every REFRESH_S: which outputs have subscribers (and, per-joint mode, sim time)."""
+        """Every REFRESH_S: which outputs have subscribers, and whether sim time is on."""
         self._out.refresh()
-        if self._arm is not None:
-            self._arm.refresh()
-        if self._runner.joints:
-            self._refresh_sim_time()
+        self._refresh_sim_time()
+
+    def _refresh_sim_time(self) -> None:
+        self._sim_time = self.get_clock().ros_time_is_active
 
     def close(self) -> None:
         """Destroy what ``open`` made: no inputs, no outputs; the observer's state is kept."""
@@ -191,7 +196,7 @@ class ObserverCore(ArmCore, JointsCore, ObserverServices):
         s = self._runner.settings
         self._reset_on_jump = s["time.reset_on_jump"]
         self._jump_threshold = s["time.jump_threshold"]
-        for tracker in getattr(self, "_sources", {}).values():
+        for tracker in getattr(self, "_owners", {}).values():
             tracker.set_limits(s["time.max_gap"], s["time.jump_threshold"])
 
     def _params_convert(self, params: list[Parameter]) -> list[Parameter]:
@@ -313,8 +318,8 @@ class ObserverCore(ArmCore, JointsCore, ObserverServices):
 
     def _from_owner(self, key: str, info: dict, t_ns: int) -> bool:
         """Whether a message on data topic ``key`` is to be used: its publisher owns the
-        topic (sources.py); a second source's is rejected and counted.  Disabled: dropped."""
-        verdict = self._sources[key].check(info, t_ns)    # always: the losses stay exact
+        topic (topic_owner.py); a second source's is rejected and counted.  Disabled: dropped."""
+        verdict = self._owners[key].check(info, t_ns)    # always: the losses stay exact
         if not self._enabled:
             if key != "input":
                 self._dropped_disabled += 1
@@ -330,72 +335,47 @@ class ObserverCore(ArmCore, JointsCore, ObserverServices):
         self._reject(SECOND_SOURCE if key != "input" else "input_" + SECOND_SOURCE)
         return False
 
-    def _on_measured_output(self, msg: Float64MultiArray, info: dict) -> None:
-        self._received["measured_output"] += 1
-        self._win_received += 1
-        if not self._from_owner("measured_output", info, info.get("source_timestamp", 0)):
+    def _on_payload(self, key: str, payload: bytes, info: dict) -> None:
+        """One message of the source's topic ``key`` (see the module doc)."""
+        self._received[key] += 1
+        if key != "input":
+            self._win_received += 1
+        recv = self._stamper.receipt_ns(info)
+        # a header stamp is checked against the wall clock, which cannot lag the data; on sim
+        # time not at all (/clock comes from the player of the data): the runner's rules
+        clock = None if self._sim_time else (time.time_ns() * 1e-9,)
+        rows = self._source.rows(key, (payload,), (-1 if recv is None else recv,),
+                                 (info.get("source_timestamp", 0),), clock)
+        if not self._from_owner(key, info, int(rows.owner_ns[0])):
             return
-        ns = self._stamper.receipt_ns(info)
-        if ns is None:
-            self._reject("waiting_for_clock")
+        for why in rows.py_reasons.values():        # refused before the runner, by name
+            if why.startswith("undecodable"):
+                self.get_logger().warning(f"{key}: message refused: {why}: "
+                                          f"{self._source.last_undecodable}",
+                                          throttle_duration_sec=LOG_THROTTLE_S)
+            self._reject(why)
             return
-        if self._from_old_timeline(ns * 1e-9):
-            return
-        out = self._runner.process(ns * 1e-9, msg.data)
-        if out.__class__ is str:
-            self._rejected(out)
-            return
-        self._publish(out, ns // _NS, ns % _NS)
-
-    def _on_input(self, msg: Float64MultiArray, info: dict) -> None:
-        self._received["input"] += 1
-        if not self._from_owner("input", info, info.get("source_timestamp", 0)):
-            return
-        ns = self._stamper.receipt_ns(info)
-        if ns is None:
-            self._reject("waiting_for_clock")
-            return
-        reason = self._runner.set_input(ns * 1e-9, msg.data)
-        if reason is not None:
-            self._rejected(reason)
-
-    def _on_joint_states(self, msg: JointState, info: dict) -> None:
-        self._received["joint_states"] += 1
-        self._win_received += 1
-        stamp = msg.header.stamp
-        if not self._from_owner("joint_states", info, stamp.sec * _NS + stamp.nanosec):
-            return
-        # the stamp is checked against the wall clock, which cannot lag the data; on sim time
-        # not at all (/clock comes from the player of the data): the runner's rules, as replayed
-        clock = self.get_clock()
-        sample = joint_state_sample(msg, self._runner.settings,
-                                    None if clock.ros_time_is_active else clock.now().nanoseconds * 1e-9,
-                                    self._runner.intake)
-        if sample.__class__ is str:
-            self._reject(sample)
-            return
-        t, y, u = sample
-        if self._from_old_timeline(t):
-            return
-        self._last_stamp = t
-        if u is not None:
-            reason = self._runner.set_input(t, u)
-            if reason is not None:  # counted by the runner; never pair y with a bad u
-                self._rejected(reason)
+        s = int(rows.srow[0])
+        if s >= 0 and not rows.whole[0]:
+            t = float(rows.t[s])
+            if self._from_old_timeline(t):
                 return
-        out = self._runner.process(t, y)
-        if out.__class__ is str:
-            self._rejected(out)
-            return
-        self._publish(out, stamp.sec, stamp.nanosec)
-
-    def _publish(self, out, sec: int, nanosec: int) -> None:
-        """Publish one Output; every message carries the measurement time (never now())."""
-        self._out.publish(out, sec, nanosec)
-        if self._arm is not None:
-            self._arm.publish(out, sec, nanosec)
-        self._published += 1
-        self._win_published += 1
+            self._last_stamp = t
+        status, x, ui, conv = self._runner.process_rows(rows.kind, rows.t, rows.values, rows.pre)
+        last = status[s] if s >= 0 else status[0]
+        ok = last == L.OUTPUT
+        if not ok.all():
+            i = int(rows.irow[0])
+            for j in np.flatnonzero(~ok):
+                st = int(last[j])
+                why = reason(int(status[i, j])) if st == L.SKIPPED and i >= 0 else reason(st)
+                if why is not None:
+                    self._rejected(why)
+        if s >= 0 and ok.any():
+            ns = int(rows.stamp_ns[0])
+            self._out.publish(ok, x[s], ui[s], conv[s], ns // _NS, ns % _NS)
+            self._published += 1
+            self._win_published += 1
 
     # ------------------------------------------------------------ diagnostics
     def _publish_diagnostics(self) -> None:
@@ -419,7 +399,7 @@ class ObserverCore(ArmCore, JointsCore, ObserverServices):
         # per data topic: its publishers, the owner's messages that never got here (sequence
         # gaps: dropped in transport or overwritten in the queue), and the middleware's own
         # message-lost count (transport losses only)
-        for key, tracker in self._sources.items():
+        for key, tracker in self._owners.items():
             values += [(f"publishers: {key}", str(tracker.publishers())),
                        (f"messages lost: {key}", str(tracker.lost)),
                        (f"messages lost (middleware event): {key}", str(self._lost_events[key]))]
@@ -430,23 +410,20 @@ class ObserverCore(ArmCore, JointsCore, ObserverServices):
         ]
         if self._last_stamp is not None and now is not None:
             values.append(("last stamp age (s)", f"{now - self._last_stamp:.4f}"))
+        if self._source.by_fallback:
+            values.append(("messages decoded by rclpy (not numpy)", str(self._source.by_fallback)))
         disabled = "" if self._enabled else "disabled via ~/enable; samples dropped: "
-        if runner.joints:
-            (level, message, values), hw, joints = self._joint_statuses(
-                now, values, 0 if self._enabled else 1, disabled)
-            self._out.publish_statuses(ns, [(level, f"{self.get_name()}: observer", message,
-                                             hw, values)] + joints)
-            return
-        st = runner.status(now)
-        level, message = st.level, st.message
-        values = list(st.values) + values
-        if not self._enabled:
-            level = max(level, 1)
-            message = disabled + message
+        statuses = runner.statuses(now)
+        summary, each = statuses[0], statuses[1:] or statuses[:len(runner.joints)]
+        message = summary.message
+        if len(each) == 1:                  # one joint: its name says whose status it is
+            message = f"{runner.joints[0]}: {message}"
         hw = runner.settings["diagnostics.hardware_id"] or runner.observer_type
-        self._out.diag.publish(diagnostic_array(
-            ns, [(level, f"{self.get_name()}: observer", message, hw, values)]
-            + self._arm_statuses(hw)))
+        self._out.publish_statuses(ns, [(
+            max(summary.level, 0 if self._enabled else 1), f"{self.get_name()}: observer",
+            disabled + message, hw, list(summary.values) + values)] + [
+            (st.level, f"{self.get_name()}: joint {name}", st.message, hw, st.values)
+            for name, st in zip(runner.joints, each)] + self._arm_statuses(hw))
 
     # ------------------------------------------------------------- accessors
     def executor_kind(self) -> str:
@@ -455,9 +432,7 @@ class ObserverCore(ArmCore, JointsCore, ObserverServices):
         if self._runner is None:
             return "single"
         kind = self._runner.settings["node.executor"]
-        if kind == "auto":
-            return "events" if self._runner.joints else "single"
-        return kind
+        return self._source.executor if kind == "auto" else kind
 
     @property
     def runner(self) -> Runner:

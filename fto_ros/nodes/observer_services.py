@@ -1,8 +1,11 @@
 """The observer node's services: ``~/reset``, ``~/enable`` and ``~/set_state`` (a service
-and a topic), mixed into ObserverCore (observer_core.py; ``self`` is the node).  In
-per-joint mode ``~/set_state`` is joints_core.py's.
+and a topic), mixed into ObserverCore (observer_core.py; ``self`` is the node).
+``~/set_state`` sets the rows the source's output plan names (its ``targets``: the whole
+plant, or each joint), as ``~/state_estimate_stamped`` names their states.
 """
 from __future__ import annotations
+
+import math
 
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.parameter import Parameter
@@ -31,49 +34,82 @@ class ObserverServices:
         self.get_logger().info(response.message)
         return response
 
-    def _set_state(self, x) -> str | None:
-        """Validate and take x; None or why it was refused (logged either way)."""
-        reason = self._runner.set_state(x)
-        names = self._runner.observer.state_names
-        if reason is None:
-            self.get_logger().info("set_state: the observer restarts from "
-                                   + ", ".join(f"{n}={v:.6g}" for n, v in zip(names, x))
-                                   + " at the next sample")
+    def _set_states(self, given: dict) -> str | None:
+        """Restart the rows named in ``given`` (the plan's target key -> that row's states)
+        from them; None or why not (nothing is taken then; logged either way)."""
+        runner = self._runner
+        keys = [key for key, _ in self._source.plan.targets]
+        n = runner.observer.n_states
+        unknown = [k for k in given if k not in keys]
+        why = (f"unknown name(s) {unknown}; set one of {keys}" if unknown else
+               "name at least one of " + ", ".join(keys) if not given else None)
+        limit = runner.settings["limits.estimate"]
+        for key, x in given.items():       # every row checked before any is taken
+            if why is None and len(x) != n:
+                why = f"{key}: {len(x)} value(s) for {n} state(s)"
+            elif why is None and not all(math.isfinite(v) and abs(v) <= limit for v in x):
+                why = f"{key}: a value is not finite or beyond limits.estimate"
+        if why is None:
+            for key, x in given.items():
+                runner.set_state(x, keys.index(key))
+            self.get_logger().info("set_state: the observer restarts from " + "; ".join(
+                f"{key}: " + ", ".join(f"{v:.6g}" for v in x) for key, x in given.items())
+                + " at the next sample")
         else:
-            self.get_logger().warning(f"set_state refused: {reason}")
-        return reason
+            self.get_logger().warning(f"set_state refused: {why}")
+        return why
 
     def _on_set_state(self, request, response):
-        """rcl_interfaces/SetParameters: one double_array parameter 'state' with every state
-        in order, or one double parameter per state, named by the state's name.  Per-joint
-        mode: joints_core.py."""
-        if self._runner.joints:
-            return self._on_set_state_joints(request, response)
-        names = list(self._runner.observer.state_names)
+        """rcl_interfaces/SetParameters: per row of the plan's targets, one double_array
+        parameter named by its key (the whole plant: 'state'; a joint: its name) with every
+        state in order, or one double per state named by its label (the whole plant: the
+        state's name; a joint: 'joint/state')."""
         params = [Parameter.from_parameter_msg(p) for p in request.parameters]
-        given = {p.name: p.value for p in params}
-        state = given.get("state")
-        if set(given) == {"state"} and hasattr(state, "__len__") and not isinstance(state, str):
-            x, reason = list(state), None
-        elif set(given) == set(names) and all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                                              for v in given.values()):
-            x, reason = [float(given[n]) for n in names], None
+        given, why = _targets(self._source.plan.targets,
+                              {p.name: p.value for p in params}), None
+        if isinstance(given, str):
+            given, why = None, given
         else:
-            x, reason = None, (f"give one double_array parameter 'state' with {len(names)} values, "
-                               f"or one double per state named {', '.join(names)}")
-        if reason is None:
-            reason = self._set_state(x)
-        response.results = [SetParametersResult(successful=reason is None, reason=reason or "")
+            why = self._set_states(given)
+        response.results = [SetParametersResult(successful=why is None, reason=why or "")
                             for _ in params or [None]]
         return response
 
     def _on_set_state_topic(self, msg: JointState) -> None:
-        if self._runner.joints:
-            self._on_set_state_topic_joints(msg)
+        """A JointState named as ~/state_estimate_stamped publishes the states (values in
+        ``position``): every state of each row it sets."""
+        if len(msg.position) != len(msg.name):
+            self.get_logger().warning("set_state refused: position must have one value per name")
             return
-        names = list(self._runner.observer.state_names)
-        if list(msg.name) != names or len(msg.position) != len(names):
-            self.get_logger().warning(f"set_state refused: name must be {names} with one "
-                                      f"position each, got {list(msg.name)}")
-            return
-        self._set_state(list(msg.position))
+        given = _targets(self._source.plan.targets, dict(zip(msg.name, msg.position)),
+                         arrays=False)
+        if isinstance(given, str):
+            self.get_logger().warning(f"set_state refused: {given}")
+        else:
+            self._set_states(given)
+
+
+def _targets(targets, values: dict, arrays: bool = True) -> dict | str:
+    """{row key: its states} of the named ``values`` (a row key -> every state of it, when
+    ``arrays``; a state label -> that state's value), or why they do not name whole rows."""
+    given, used = {}, set()
+    for key, labels in targets:
+        v = values.get(key) if arrays else None
+        if v is not None:
+            if not hasattr(v, "__len__") or isinstance(v, str):
+                return f"{key}: give a double_array with its {len(labels)} states"
+            given[key] = [float(a) for a in v]
+            used.add(key)
+        elif any(lb in values for lb in labels):
+            if not all(lb in values for lb in labels):
+                return f"{key}: name every state as {', '.join(labels)}"
+            if not all(isinstance(values[lb], (int, float)) and not isinstance(values[lb], bool)
+                       for lb in labels):
+                return f"{key}: give one double per state"
+            given[key] = [float(values[lb]) for lb in labels]
+            used.update(labels)
+    extra = [k for k in values if k not in used]
+    if extra:
+        keys = [key for key, _ in targets]
+        return f"names other than the states of {', '.join(keys)}: {extra}"
+    return given

@@ -2,18 +2,15 @@
 outputs out, one compiled call (``Runner.process_block``) per window.
 
 :func:`plan_rows` turns the bag's events (replay/events.py) into the runner's event rows
-once, as the live node would hand them over: a measurement is a MEASUREMENT row, an input
-an INPUT row, a JointState (its sample time: the header stamp) an INPUT row then a PAIRED
-row (the measurement, skipped when that input was refused) or one MEASUREMENT row without
-inputs; a sample the intake refuses (a Float64MultiArray of the wrong length, a JointState
-without a configured joint, a future stamp) is a REFUSED row with its rejection code.  An
-intake reason without a code (a caller's own) is counted by ``Runner.reject`` between two
-compiled calls, in order.  :func:`run_window` runs the rows of a window of events and
-returns an :class:`OutputBlock`: one row per sample with an output (its time, estimate,
+once, as the live node hands them over: each of the source's topics is decoded in one
+batch by the source (runner/sources/: its rows per message, the intake's refusals as
+codes) and the rows are put in event order.  An intake reason without a code (a caller's
+own) is counted by ``Runner.reject`` between two compiled calls, in order.
+:func:`run_window` runs the rows of a window of events and returns an
+:class:`OutputBlock`: one row per sample with an output (its time, estimate,
 unknown-input estimate and convergence values, per joint) and a status per sample and
-joint.  The same calls as the events one by one through ``set_input`` / ``process``
-(runner/loop.py runs a block of one for those), so the same outputs, rejections, restarts
-and counters.
+joint.  The same calls as the node's message by message (runner/loop.py runs a block of
+one for those), so the same outputs, rejections, restarts and counters.
 """
 from __future__ import annotations
 
@@ -22,16 +19,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.reasons import CODE, REJECTIONS
+from ..core.reasons import REJECTIONS
 from ..runner import loop as L
-from ..runner.intake import JointIntake, joint_sample
-from ..runner.messages import joint_state_sample
+from ..runner.sources.base import PYTHON
 from . import events as E
 
 #: per-sample status codes (per joint)
 ACCEPTED, IS_HELD, REJECTED, NO_SAMPLE = 0, 1, 2, 3
-#: a row counted in Python (an intake reason without a code): not handed to the runner
-PYTHON = 99
 
 
 @dataclass
@@ -65,123 +59,47 @@ class OutputBlock:
     runner_s: float           # wall time of the window's runner calls
 
 
-def _float_rows(values, width: int, code: int) -> tuple[np.ndarray, np.ndarray]:
-    """(rows (N, width) zero-padded, intake codes (N,)) of a Float64MultiArray stream: a
-    message of another length is refused with ``code`` (check_vector's ``_wrong_length``;
-    its values never reach an observer)."""
-    if isinstance(values, np.ndarray) and values.ndim == 2:
-        n = values.shape[0]
-        out = np.zeros((n, max(width, 1)))
-        if values.shape[1] == width:
-            out[:, :width] = values
-            return out, np.zeros(n, np.int16)
-        return out, np.full(n, code, np.int16)
-    out = np.zeros((len(values), max(width, 1)))
-    pre = np.zeros(len(values), np.int16)
-    for i, v in enumerate(values):
-        if len(v) == width:
-            out[i, :width] = v
-        else:
-            pre[i] = code
-    return out, pre
-
-
-def _joint_rows(runner, msgs, log_t_ns, width: int):
-    """Per JointState: (t s, stamp ns, y (J, w), u (J, w) or None, pre (J,), reason or None)."""
-    settings = runner.settings
-    m = runner.observer.n_inputs
-    out = []
-    if runner.joints:
-        intake = JointIntake(runner.joints, settings["joint_states.output_fields"],
-                             settings["joint_states.input_fields"], m)
-        for msg, t_log in zip(msgs, log_t_ns.tolist()):
-            out.append(joint_sample(intake, msg, settings, t_log * 1e-9, width))
-        return out
-    J = 1
-    for msg, t_log in zip(msgs, log_t_ns.tolist()):
-        st = msg.header.stamp
-        s_ns = st.sec * 1_000_000_000 + st.nanosec
-        sample = joint_state_sample(msg, settings, t_log * 1e-9, runner.intake)
-        if sample.__class__ is str:
-            out.append((0.0, s_ns, None, None, None, sample))
-            continue
-        t, y, u = sample
-        yv = np.zeros((J, width))
-        yv[0, :len(y)] = y
-        uv = None
-        if u is not None:
-            uv = np.zeros((J, width))
-            uv[0, :len(u)] = u
-        out.append((t, s_ns, yv, uv, np.zeros(J, np.int16), None))
-    return out
-
-
-def plan_rows(runner, ev: E.Events, streams) -> Rows:
+def plan_rows(source, ev: E.Events, streams) -> Rows:
     """The runner's rows of every event of ``ev`` (see the module doc)."""
-    obs = runner.observer
-    J = runner.n_joints
-    p, m = obs.n_outputs, obs.n_inputs
-    width = max(p, m, 1)
+    J, width = source.runner.n_joints, source.width
     count = np.zeros(ev.t.size, np.int64)
-    is_meas, is_in, is_js = ev.kind == E.MEAS, ev.kind == E.INPUT, ev.kind == E.JOINT
-    count[is_meas | is_in] = 1
-    joints = _joint_rows(runner, streams.joints[1], streams.joints[0], width) \
-        if is_js.any() else []
-    js_rows = np.array([2 if (j[3] is not None and j[5] is None) else 1 for j in joints],
-                       np.int64)
-    if joints:
-        count[is_js] = js_rows[ev.idx[is_js]]
+    batches = []
+    for topic in source.topics:
+        t, payloads = streams.raw[topic.key]
+        sel = np.flatnonzero(ev.kind == ev.roles.index(topic.key))
+        if not sel.size:
+            continue
+        rows = source.rows(topic.key, payloads, t, t, t * 1e-9)
+        m = ev.idx[sel]
+        count[sel] = np.diff(rows.first)[m]
+        batches.append((sel, m, rows))
     first = np.zeros(ev.t.size + 1, np.int64)
     np.cumsum(count, out=first[1:])
     R = int(first[-1])
-    kind = np.zeros(R, np.int8)
-    t = np.zeros(R)
-    values = np.zeros((R, J, width))
-    pre = np.zeros((R, J), np.int16)
-    srow = np.full(ev.t.size, -1, np.int64)
-    irow = np.full(ev.t.size, -1, np.int64)
-    stamp = ev.t.astype(np.int64).copy()
-    t_s = ev.t / 1e9
-    for which, stream, code, k in ((is_meas, streams.meas[1], CODE["measurement_wrong_length"],
-                                    L.MEASUREMENT),
-                                   (is_in, streams.inputs[1], CODE["input_wrong_length"], L.INPUT)):
-        if not which.any():
-            continue
-        rows, codes = _float_rows(stream, p if k == L.MEASUREMENT else m, code)
-        at = first[:-1][which]
-        i = ev.idx[which]
-        kind[at] = np.where(codes[i] != 0, L.REFUSED, k)
-        t[at] = t_s[which]
-        values[at, :, :rows.shape[1]] = rows[i][:, None, :]
-        pre[at] = codes[i][:, None]
-        if k == L.MEASUREMENT:
-            srow[which] = at
-    py_rows, py_reasons = [], []
-    for e in np.flatnonzero(is_js).tolist():
-        ts, s_ns, y, u, refused, why = joints[ev.idx[e]]
-        r = int(first[e])
-        stamp[e] = s_ns
-        srow[e] = r + int(count[e]) - 1
-        if why is not None:
-            if why in CODE:
-                kind[r], pre[r] = L.REFUSED, CODE[why]
-            else:
-                kind[r] = PYTHON
-                py_rows.append(r)
-                py_reasons.append(why)
-            continue
-        t[r:r + int(count[e])] = ts
-        if u is not None:
-            kind[r] = L.INPUT
-            values[r] = u
-            pre[r] = np.where(refused != 0, -1, 0)
-            irow[e] = r
-            r += 1
-        kind[r] = L.PAIRED if u is not None else L.MEASUREMENT
-        values[r] = y
-        pre[r] = refused
-    return Rows(kind, t, values, pre, first, srow, irow, stamp,
-                np.asarray(py_rows, np.int64), py_reasons)
+    out = Rows(np.zeros(R, np.int8), np.zeros(R), np.zeros((R, J, width)),
+               np.zeros((R, J), np.int16), first, np.full(ev.t.size, -1, np.int64),
+               np.full(ev.t.size, -1, np.int64), ev.t.astype(np.int64).copy(),
+               np.zeros(0, np.int64), [])
+    py = {}
+    for sel, m, rows in batches:
+        src, dst, n = rows.first[m], first[sel], count[sel]
+        for k in range(int(n.max())):
+            have = n > k
+            a, b = src[have] + k, dst[have] + k
+            out.kind[b], out.t[b] = rows.kind[a], rows.t[a]
+            out.values[b], out.pre[b] = rows.values[a], rows.pre[a]
+        shift = dst - src
+        out.srow[sel] = np.where(rows.srow[m] >= 0, rows.srow[m] + shift, -1)
+        out.irow[sel] = np.where(rows.irow[m] >= 0, rows.irow[m] + shift, -1)
+        out.stamp_ns[sel] = rows.stamp_ns[m]
+        if rows.py_reasons:
+            msg_of = np.searchsorted(rows.first, list(rows.py_reasons), "right") - 1
+            where = dict(zip(m.tolist(), (dst - src).tolist()))
+            for r, mm in zip(rows.py_reasons, msg_of.tolist()):
+                py[r + where[mm]] = rows.py_reasons[r]
+    out.py_rows = np.asarray(sorted(py), np.int64)
+    out.py_reasons = [py[r] for r in sorted(py)]
+    return out
 
 
 def run_window(runner, rows: Rows, start: int, stop: int) -> OutputBlock:

@@ -13,33 +13,35 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: event kinds (the stream each event comes from)
-INPUT, MEAS, JOINT, TRUTH, CLOCK, TRUTH_UI, TRUTH_JOINTS = 0, 1, 2, 3, 4, 5, 6
-#: the stream role of each kind
-ROLE = {INPUT: "inputs", MEAS: "meas", JOINT: "joints", TRUTH: "truth", CLOCK: "clock",
-        TRUTH_UI: "truth_ui", TRUTH_JOINTS: "truth_joints"}
-#: the rank of each kind at equal log times
-_RANK = {CLOCK: 0, INPUT: 0, MEAS: 1, JOINT: 1, TRUTH: 2, TRUTH_UI: 2, TRUTH_JOINTS: 2}
-#: the order the streams are merged in (stable at equal time and rank)
-_ORDER = (CLOCK, INPUT, MEAS, JOINT, TRUTH, TRUTH_UI, TRUTH_JOINTS)
+#: the roles in merge order (stable at equal time and rank): the clock, the source's topics
+#: (by their keys), the ground truth
+ROLES = ("clock", "input", "measured_output", "joint_states", "truth", "truth_ui",
+         "truth_joints")
+#: the rank at equal log times of the roles that are not a source's (which ranks its own)
+RANK = {"clock": 0, "truth": 2, "truth_ui": 2, "truth_joints": 2}
 
 
 @dataclass
 class Events:
-    """Events in processing order: log time (ns), kind, index in the kind's stream."""
+    """Events in processing order: log time (ns), kind (an index into ``roles``), index in
+    the kind's stream."""
 
     t: np.ndarray
     kind: np.ndarray
     idx: np.ndarray
+    roles: tuple = ROLES
 
 
-def order_events(streams) -> Events:
-    """The events of every stream of ``streams`` (replay/streams.py) in processing order."""
-    times = [getattr(streams, ROLE[k])[0] for k in _ORDER]
+def order_events(streams, ranks: dict) -> Events:
+    """The events of every stream of ``streams`` (replay/streams.py) in processing order;
+    ``ranks``: the source's topics' ranks (TopicIn.rank) by key."""
+    rank_of = {**RANK, **ranks}
+    times = [streams.times(role) for role in ROLES]
     t_all = np.concatenate(times)
-    rank = np.concatenate([np.full(t.size, _RANK[k], np.int8) for t, k in zip(times, _ORDER)])
+    rank = np.concatenate([np.full(t.size, rank_of.get(role, 1), np.int8)
+                           for t, role in zip(times, ROLES)])
     order = np.lexsort((rank, t_all))
-    kind = np.concatenate([np.full(t.size, k, np.int8) for t, k in zip(times, _ORDER)])
+    kind = np.concatenate([np.full(t.size, k, np.int8) for k, t in enumerate(times)])
     idx = np.concatenate([np.arange(t.size) for t in times])
     return Events(t_all[order], kind[order], idx[order])
 

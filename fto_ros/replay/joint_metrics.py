@@ -1,5 +1,5 @@
 """The per-joint mode's error metrics: each joint's published position, velocity and effort
-(runner/joints.py's OutputPlan) against a ground truth JointState mapped by joint name, as a
+(the per-joint plan's ``estimated_joint_states``, runner/sources/plan.py) against a ground truth JointState mapped by joint name, as a
 user records it (``topics.true_state`` of type sensor_msgs/JointState: its position,
 velocity and effort of each joint, in any order), per joint and over all joints.
 
@@ -13,7 +13,6 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..runner.joints import OutputPlan
 from . import metrics as M
 
 FIELDS = ("position", "velocity", "effort")
@@ -37,43 +36,52 @@ def _truth_columns(msgs, joints) -> dict[str, np.ndarray]:
     return out
 
 
-def field_units(plan: OutputPlan, units: Sequence[str], ui_units: Sequence[str]) -> dict[str, str]:
-    """The unit of each published field (the plant's units of the position and velocity
-    states, of the effort's state or unknown input); '' where the plant gives none."""
-    def state(i: int) -> str:
-        return units[i] if 0 <= i < len(units) else ""
-    effort = (ui_units[plan.effort] if plan.effort_from == "unknown_input" and
-              plan.effort < len(ui_units) else state(plan.effort) if plan.effort_from == "state"
-              else "")
-    return {"position": state(plan.position), "velocity": state(plan.velocity), "effort": effort}
+def field_units(spec, units: Sequence[str], ui_units: Sequence[str]) -> dict[str, str]:
+    """The unit of each field of the plan's ``estimated_joint_states`` ``spec`` (the plant's
+    unit of the state or unknown input it publishes); '' where the plant gives none."""
+    out = {}
+    for f, field in zip(FIELDS, spec.fields):
+        unit = ""
+        if field is not None and len(field[1]):
+            src, i = field[0], int(field[1][0])
+            names = units if src == "x" else ui_units
+            unit = names[i] if 0 <= i < len(names) else ""
+        out[f] = unit
+    return out
 
 
-def joint_errors(runner, run, truth, settle: float, units: Sequence[str] = (),
+def joint_errors(plan, run, truth, settle: float, units: Sequence[str] = (),
                  ui_units: Sequence[str] = ()) -> tuple[dict[str, Any] | None, str | None]:
     """({"per_joint": {joint: error_stats of its fields}, "all_joints": error_stats of every
     joint's errors together, "units": {field: unit}, ...}, None), or (None, why there are
-    none).  Each field in its own unit: no norm over the fields (rad, rad/s, N m)."""
+    none); ``plan`` the per-joint source's output plan.  Each field in its own unit: no norm
+    over the fields (rad, rad/s, N m)."""
     t_truth, msgs = truth
     if not len(msgs):
         return None, "no ground truth: the truth topic has no messages"
-    plan = OutputPlan(runner)
-    cols = _truth_columns(msgs, plan.names)
-    pos, vel, eff = plan.fields(run.est_x, run.est_w)
-    est = {"position": pos, "velocity": vel, "effort": eff}
-    fields = [f for f in FIELDS if est[f].ndim == 2 and np.isfinite(cols[f]).any()]
+    spec = next(s for s in plan.specs if s.topic == "estimated_joint_states")
+    names = list(spec.labels)
+    cols = _truth_columns(msgs, names)
+    x, w = run.est_xj, run.est_w
+    est = {}
+    for f, field in zip(FIELDS, spec.fields):     # (k, J) per field the plan fills
+        if field is not None:
+            src, c = field
+            est[f] = {"x": x, "w": w}[src][:, spec.rows, c]
+    fields = [f for f in FIELDS if f in est and np.isfinite(cols[f]).any()]
     if not fields or not run.est_t.size:
         return None, "no estimate and truth field in common"
     per_joint: dict[str, Any] = {}
     all_err, all_settled = [], []
     matched = unmatched = 0
-    for j, name in enumerate(plan.names):
+    for j, name in enumerate(names):
         rows = np.flatnonzero(run.est_ok[:, j])
         truth_j = np.column_stack([cols[f][:, j] for f in fields])
         good = np.all(np.isfinite(truth_j), axis=1)
         mask, at = M.match_truth(run.est_t[rows], t_truth[good], truth_j[good])
         rows = rows[mask]
         err = at[mask] - np.column_stack([est[f][rows, j] for f in fields])
-        settled = run.est_conv[rows, j, 0] >= settle - 1e-9
+        settled = run.est_cj[rows, j, 0] >= settle - 1e-9
         per_joint[name] = _by_field(err, fields, settled)
         per_joint[name]["matched_samples"] = int(rows.size)
         matched += int(rows.size)
@@ -81,7 +89,7 @@ def joint_errors(runner, run, truth, settle: float, units: Sequence[str] = (),
         all_err.append(err)
         all_settled.append(settled)
     overall = _by_field(np.concatenate(all_err), fields, np.concatenate(all_settled))
-    fu = field_units(plan, units, ui_units)
+    fu = field_units(spec, units, ui_units)
     return {"fields": fields, "units": {f: fu[f] for f in fields}, "per_joint": per_joint,
             "all_joints": overall,
             "matched_samples": matched, "unmatched_samples": unmatched,

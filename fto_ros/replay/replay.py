@@ -63,9 +63,9 @@ METRICS_SCHEMA = "fto_ros/replay-metrics/1"
 #: a replay that accepts fewer than this fraction of its measurement samples fails (exit 1)
 DEFAULT_MIN_ACCEPTED = 0.5
 
-_ROLE_NAMES = {"meas": "measured_output", "inputs": "input", "joints": "joint_states",
-               "truth": "true_state", "truth_ui": "true_unknown_input", "clock": "clock",
-               "truth_joints": "true_state"}
+_ROLE_NAMES = {"measured_output": "measured_output", "input": "input",
+               "joint_states": "joint_states", "truth": "true_state",
+               "truth_ui": "true_unknown_input", "clock": "clock", "truth_joints": "true_state"}
 
 
 # --------------------------------------------------------------------------------------
@@ -197,12 +197,9 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
     truth_note = inp.truth_note
     truth_t = truth_x = None
     joint_errors = None
-    if runner.joints:
-        if "truth_joints" in inp.roles:
-            joint_errors, truth_note = JM.joint_errors(runner, run, streams.truth_joints, settle,
-                                                       units[0], units[1])
-        # the per-joint estimates' columns stand for the plot's states (joint 0's shown)
-        x_est, conv = x_est[:, 0], conv[:, 0]
+    if runner.joints and "truth_joints" in inp.roles:   # per joint: by joint name
+        joint_errors, truth_note = JM.joint_errors(run.source.plan, run, streams.truth_joints,
+                                                   settle, units[0], units[1])
     if "truth" in inp.roles:
         truth_t, truth_x, why = _truth_rows(streams.truth, inp.truth_topic, n, "",
                                             f"the observer has {n} states")
@@ -239,7 +236,7 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
     p50_obs, p99_obs = runner.update_time_us()
     duration_s = info.duration_ns / 1e9
     wall = run.timing["replay_total"]
-    source = settings["source"]
+    source = run.source
     metrics: dict[str, Any] = {
         "schema": METRICS_SCHEMA,
         "bag": str(bag_path),
@@ -247,7 +244,7 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
         "node_name": fqn,
         "observer_type": obs.TYPE,
         "state_names": names,
-        "source": source,
+        "source": settings["source"],
         "input_topics": {_ROLE_NAMES[k]: v for k, v in inp.roles.items()},
         "output_bag": str(out_dir),
         "output_topics": dict(sorted(run.counts.items())),
@@ -255,9 +252,9 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
         "bag_start_s": info.start_ns / 1e9,
         "bag_duration_s": duration_s,
         # with joints, a sample is one joint's entry of a message
-        "sample_count": len(streams.meas[1]) if source == "topics" else
-        len(streams.joints[1]) * runner.n_joints,
-        "input_count": len(streams.inputs[1]),
+        "sample_count": runner.n_joints * sum(streams.times(t.key).size
+                                              for t in source.topics if t.samples),
+        "input_count": streams.times("input").size,
         "samples_accepted": runner.accepted,
         "samples_rejected": sum(runner.rejected.values()),
         "rejected_by_reason": dict(sorted(runner.rejected.items())),
@@ -295,7 +292,7 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
             "type store, the metrics and the plot; timing_s has the parts)"),
         "timing_s": dict(run.timing),
         "reader": streams.reader,
-        "serializer_fallbacks": run.fallbacks,
+        "decoded_by_rosbags": source.by_fallback,
         "diagnostics_levels": dict(run.status_levels),
         "final_status": {"level": LEVEL_NAMES.get(run.final_status.level,
                                                   str(run.final_status.level)),
@@ -304,12 +301,12 @@ def _metrics(runner: Runner, run: _Run, bag_path: Path, params_path: Path, out_d
             str(k): (v if isinstance(v, (int, float, str, bool)) or v is None else str(v))
             for k, v in obs.diagnostics().items()},
     }
-    if runner.joints:
+    if runner.joints:                           # the per-joint source's figures
         metrics.update(joints=list(runner.joints), joint_errors=joint_errors,
                        truth_topic=inp.truth_topic if "truth_joints" in inp.roles else None)
     if runner.intake is not None:                      # an arm's external torques
         metrics["arm"] = AM.metrics(runner, run, *(arm_ui or (None, None)),
-                                    len(streams.joints[1]))
+                                    streams.times("joint_states").size)
     if "mode" in runner.convergence_fields:            # a composition (track)
         t_rel = (t_est_ns - t_start_ns) / 1e9 if t_start_ns is not None else np.zeros(0)
         metrics["composition"] = M.composition(t_rel, conv, runner.convergence_fields)

@@ -19,16 +19,19 @@ from typing import Any
 import numpy as np
 
 from ..bag import BagWriter
+from ..bag.reader import deserialize, shared_typestore
 from ..runner.runner import Runner, convergence_fields
+from ..runner.sources import make_source
 from . import events as E
 from .blocks import OutputBlock, plan_rows, run_window, ui_width
-from .joint_outputs import JointsOutputBag
 from .outputs import OutputBag
 from .streams import Inputs, read_inputs
 
 #: zstd level of the output bag: compressing is the largest part of writing it, and
 #: level 1 takes half the time of the default 3 for a 7 % larger file (docs/replay.md)
 OUTPUT_ZSTD_LEVEL = 1
+#: the data topics whose messages /diagnostics counts, as the node does
+RECEIVED = ("measured_output", "input", "joint_states")
 #: the most events the runner is handed at once (a window also ends at every diagnostics
 #: boundary); bounds the memory of a window's outputs
 MAX_WINDOW_EVENTS = 1 << 14
@@ -71,17 +74,19 @@ class _Run:
 
     inputs: Inputs | None = None
     est_t: np.ndarray = None            # (k,) int64 sample times
-    est_x: np.ndarray = None            # (k, n)
+    est_x: np.ndarray = None            # (k, n): the first joint's (the whole plant's)
     est_conv: np.ndarray = None         # (k, ncf)
     est_ui_idx: np.ndarray = None       # (m,) rows of est_* with an unknown-input estimate
     est_ui: np.ndarray = None           # (m, r)
     est_ok: np.ndarray = None           # (k, J) the joint has an output in the row
-    est_w: np.ndarray = None            # (k, J, r) per-joint unknown inputs (joints mode)
+    est_xj: np.ndarray = None           # (k, J, n) every joint's estimates
+    est_cj: np.ndarray = None           # (k, J, ncf) ... convergence values
+    est_w: np.ndarray = None            # (k, J, r) ... unknown inputs
     proc_s: np.ndarray = None           # (k,) s: the update time of each row (gather)
     counts: dict = field(default_factory=dict)
     status_levels: dict = field(default_factory=dict)
     final_status: Any = None
-    fallbacks: list = field(default_factory=list)
+    source: Any = None
     timing: dict = field(default_factory=dict)
 
     def gather(self, blocks: list[OutputBlock], n: int, r: int, ncf: int, J: int) -> None:
@@ -95,15 +100,24 @@ class _Run:
         # the update time of a sample: its window's runner time over the window's samples
         self.proc_s = cat([np.full(b.t_ns.size, b.runner_s / max(b.status.shape[0], 1))
                            for b in blocks], 0)
-        if J == 1:
-            self.est_x, self.est_conv = x[:, 0], c[:, 0]
-            has_w = ~np.isnan(w[:, 0, 0]) if r else np.zeros(x.shape[0], bool)
-            self.est_ui_idx = np.flatnonzero(has_w)
-            self.est_ui = w[has_w, 0]
-        else:
-            self.est_x, self.est_conv, self.est_w = x, c, w
-            self.est_ui_idx = np.zeros(0, np.int64)
-            self.est_ui = np.zeros((0, r))
+        self.est_xj, self.est_cj, self.est_w = x, c, w
+        self.est_x, self.est_conv = x[:, 0], c[:, 0]
+        has_w = self.est_ok[:, 0] if r else np.zeros(x.shape[0], bool)
+        self.est_ui_idx = np.flatnonzero(has_w)
+        self.est_ui = w[has_w, 0]
+
+
+class _RosbagsFallback:
+    """The replay's fallback for what the numpy codec does not take: rosbags' deserialiser
+    (BagError naming the bag and the topic for what it refuses too: a bad bag stops the
+    replay).  ``roles``: the topic of each source key, once the bag's roles are known."""
+
+    def __init__(self, bag_path: Path):
+        self.bag_path, self.roles = bag_path, {}
+
+    def __call__(self, payload: bytes, msgtype: str, key: str):
+        where = f"{self.bag_path}: topic {self.roles.get(key, key)}"
+        return deserialize(shared_typestore(), payload, msgtype, where, 0)
 
 
 def _run(runner: Runner, bag_path: Path, out_dir: Path, fqn: str, overwrite: bool,
@@ -113,17 +127,19 @@ def _run(runner: Runner, bag_path: Path, out_dir: Path, fqn: str, overwrite: boo
     settings, obs = runner.settings, runner.observer
     r = _Run()
     wall0 = time.perf_counter()
-    r.inputs = inp = read_inputs(bag_path, runner, fqn)
+    fallback = _RosbagsFallback(bag_path)
+    source = make_source(runner, fallback)
+    r.inputs = inp = read_inputs(bag_path, runner, fqn, source)
+    fallback.roles = inp.roles
     streams, info = inp.streams, inp.info
     wall_read = time.perf_counter()
-    ev = E.order_events(streams)
-    rows = plan_rows(runner, ev, streams)
+    ev = E.order_events(streams, {t.key: t.rank for t in source.topics})
+    rows = plan_rows(source, ev, streams)
     wall_order = time.perf_counter()
 
     n, ncf = obs.n_states, len(convergence_fields(obs))
     period_ns = max(int(round(settings["diagnostics.period"] * 1e9)), 1)
-    received = {"measured_output": streams.meas[0], "input": streams.inputs[0],
-                "joint_states": streams.joints[0]}
+    received = {key: streams.times(key) for key in RECEIVED}
     t_first = int(ev.t[0]) if ev.t.size else info.start_ns
     t_last = int(ev.t[-1]) if ev.t.size else info.end_ns
     bar = _Progress(progress, t_first, t_last)
@@ -133,7 +149,7 @@ def _run(runner: Runner, bag_path: Path, out_dir: Path, fqn: str, overwrite: boo
     wall_loop0 = time.perf_counter()
     with BagWriter(out_dir, overwrite=overwrite, custom_data=custom, inputs=protect,
                    level=OUTPUT_ZSTD_LEVEL) as bag:
-        out = (JointsOutputBag if runner.joints else OutputBag)(bag, runner, fqn, inp)
+        out = OutputBag(bag, runner, source.plan, fqn, inp)
         r_ui = ui_width(runner)
         for start, stop, boundary in E.windows(ev, t_first, period_ns, MAX_WINDOW_EVENTS):
             block = run_window(runner, rows, start, stop)
@@ -150,7 +166,8 @@ def _run(runner: Runner, bag_path: Path, out_dir: Path, fqn: str, overwrite: boo
         wall_loop1 = time.perf_counter()
     wall_end = time.perf_counter()
     r.gather(blocks, n, r_ui, ncf, runner.n_joints)
-    r.counts, r.status_levels, r.fallbacks = out.counts, out.status_levels, out.enc.fallbacks
+    r.counts, r.status_levels = out.counts, out.status_levels
+    r.source = source
     r.timing = {
         "read_decode": wall_read - wall0,
         # ordering the events and making the runner's rows of them (the intake)

@@ -20,7 +20,6 @@ import re
 from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
-import numpy as np
 import sympy
 
 from ..core.errors import ConfigError, short
@@ -178,50 +177,3 @@ def roles(settings: Mapping[str, Any], plant, state_names: Sequence[str],
     else:
         eff = ("state", index("joint_roles.effort", effort))
     return Roles(pos, vel, eff)
-
-
-class OutputPlan:
-    """The per-joint mode's default output, one JointState per message by name: each joint's
-    position, velocity (when a state is its velocity) and effort (the unknown-input estimate
-    or a state, see :func:`roles`), the joints with an output in that message only.  The one
-    output schema of the node and the replay: both hand it the runner's per-joint values."""
-
-    def __init__(self, runner):
-        roles = runner.roles
-        first = roles[0]
-        if any(r != first for r in roles[1:]):      # the same plant: the same roles
-            raise ConfigError("joints", "the joints' states play different roles")
-        self.names = list(runner.joints)
-        self.position, self.velocity = first.position, first.velocity
-        self.effort_from, self.effort = first.effort
-        self.sizes = (1, int(self.velocity >= 0), int(self.effort_from != "none"))
-
-    def fields(self, x, w):
-        """(position, velocity, effort), each (k, J) or (k, J, 0) when the JointState leaves
-        it empty, of estimates ``x`` (k, J, n) and unknown-input estimates ``w`` (k, J, r)."""
-        k, J = x.shape[:2]
-        none = np.zeros((k, J, 0))
-        pos = x[:, :, self.position]
-        vel = x[:, :, self.velocity] if self.velocity >= 0 else none
-        if self.effort_from == "unknown_input":
-            eff = w[:, :, self.effort]
-        elif self.effort_from == "state":
-            eff = x[:, :, self.effort]
-        else:
-            eff = none
-        return pos, vel, eff
-
-    def message(self, outputs) -> tuple[list, list, list, list]:
-        """(names, position, velocity, effort) lists of one ``Runner.process_joints`` result
-        (an Output, or a reason / None for a joint without one): what the node publishes."""
-        names, cols = [], ([], [], [])
-        for name, out in zip(self.names, outputs):
-            if out is None or isinstance(out, str):
-                continue
-            names.append(name)
-            w = out.unknown_input if out.unknown_input is not None else np.zeros(0)
-            vals = self.fields(out.estimate[None, None, :], w[None, None, :])
-            for col, v, size in zip(cols, vals, self.sizes):
-                if size:
-                    col.append(float(v[0, 0]))
-        return (names, *cols)

@@ -48,7 +48,7 @@ from .arm_intake import arm_intake
 from .build import changed_names, design_guard
 from . import status as ST
 from .health import HealthWindow
-from .joint_outputs import estimated_joint_states
+from .sources.plan import estimated_joint_states
 from .status import Status
 
 #: order of the values on the ``convergence`` topic
@@ -315,6 +315,17 @@ class Runner:
         vals[-1, :, :obs.n_outputs] = y
         self._run(ev)
         return status, ox, oui, oconv
+
+    def process_rows(self, kind: np.ndarray, t: np.ndarray, values: np.ndarray,
+                     pre: np.ndarray):
+        """``process_block`` of rows already in the loop's layout (a source's Rows: int8
+        kinds, times, (K, J, width) values, (K, J) int16 codes): (status, estimate, unknown
+        input, convergence) in buffers the next call of as many rows reuses (the node)."""
+        out = self._joint_ev.get(("rows", len(t)))
+        if out is None:
+            out = self._joint_ev[("rows", len(t))] = self._events(len(t))[4:]
+        self._run((kind, t, values, pre) + out)
+        return out
 
     def process_block(self, kind: np.ndarray, t: np.ndarray, values: np.ndarray,
                       refused: np.ndarray | None = None) -> Block:

@@ -136,7 +136,8 @@ def joint_status(runner, now: float | None, j: int) -> Status:
     if recent.get("rebase"):
         level = WARN
         problems.append("the outlier gate accepted a persisting change of the signal")
-    for warning in getattr(obs, "warnings", lambda: ())():   # the observer's own
+    own = getattr(obs, "warnings", None)      # the arm's method (global_norm's is a list)
+    for warning in (own() if callable(own) else ()):        # the observer's own
         level = max(level, WARN)
         problems.append(warning)
     if state == "diverging":

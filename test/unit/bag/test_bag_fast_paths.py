@@ -147,8 +147,8 @@ def _committed_bags():
 def test_fast_reader_gives_what_rosbags_reads_on_every_committed_bag(bag):
     """bag/mcap_scan.py (indexed and scanned) and the numpy decoders against rosbags:
     the same log times, payload bytes and, field by field, the same decoded values."""
-    from fto_ros.bag.cdr import decode_float_block, decode_joint_states
     from fto_ros.bag.mcap_scan import fast_info, read_raw
+    from fto_ros.core.cdr import JointStateDecoder, decode_float_block
     info, files = fast_info(bag)
     assert info == bag_info(bag)
     ref = _rosbags_raw(bag)
@@ -170,7 +170,11 @@ def test_fast_reader_gives_what_rosbags_reads_on_every_committed_bag(bag):
             np.testing.assert_array_equal(decode_float_block(payloads),
                                           np.array([m.data for m in msgs]))
         elif info.topics[topic].msgtype == JS:
-            views = decode_joint_states(payloads)
+            runs = JointStateDecoder().decode_block(payloads)
+            assert len(runs) == 1                  # one layout: one run, no Python per message
+            sec, nsec, js = runs[0]
+            views = [js._replace(sec=int(a), nanosec=int(b), position=p, velocity=v, effort=e)
+                     for a, b, p, v, e in zip(sec, nsec, js.position, js.velocity, js.effort)]
             assert len(views) == len(msgs)
 
             def fields(ms):
@@ -206,9 +210,9 @@ def test_a_damaged_message_index_falls_back_to_the_scan(tmp_path):
         assert list(zip(got[topic][0].tolist(), got[topic][1])) == ref[topic]
 
 
-def test_joint_states_of_mixed_layouts_are_left_to_rosbags(tmp_path):
-    from fto_ros.bag.cdr import decode_joint_states
+def test_joint_states_of_mixed_layouts_are_decoded_as_runs_of_one_layout(tmp_path):
     from fto_ros.bag.mcap_scan import read_raw
+    from fto_ros.core.cdr import JointStateDecoder
     path = tmp_path / "bag"
     with BagWriter(path) as bag:
         bag.joint_state("/j", 1, 1, ["a"], position=[1.0])
@@ -218,33 +222,13 @@ def test_joint_states_of_mixed_layouts_are_left_to_rosbags(tmp_path):
         bag.joint_state("/k", 2, 5, ["a", "b"], position=[5.0, 6.0], effort=[7.0, 8.0],
                         frame_id="base")
     raw = read_raw(path, ["/j", "/k"])
-    assert decode_joint_states(raw["/j"][1]) is None
-    views = decode_joint_states(raw["/k"][1])
-    assert [(v.header.stamp.nanosec, v.position.tolist(), v.velocity.tolist(),
-             v.effort.tolist()) for v in views] == [(1, [1.0, 2.0], [], [3.0, 4.0]),
-                                                     (5, [5.0, 6.0], [], [7.0, 8.0])]
-
-
-def test_block_encoders_match_rosbags():
-    from fto_ros.bag.cdr import Encoders
-    from fto_ros.bag.reader import jazzy_typestore
-    enc = Encoders(jazzy_typestore())
-    rng = np.random.default_rng(2)
-    for n in range(5):
-        for labels in (None, [f"x{i}" for i in range(n)], ["a_long_label"] * n):
-            x = rng.normal(size=(6, n))
-            assert [r.tobytes() for r in enc.float_block(n, labels)(x)] == \
-                [enc._rosbags_f64(r, labels) for r in x]
-    for frame in ("", "base_link", "odom_1"):
-        for sizes in ((2, 0, 2), (0, 0, 0), (2, 2, 2), (0, 2, 0)):
-            names = ["a", "joint_12"]
-            sec, nsec = rng.integers(0, 2 ** 31 - 1, 5), rng.integers(0, 10 ** 9, 5)
-            arrays = [rng.normal(size=(5, k)) for k in sizes]
-            got = enc.joint_state_block(names, sizes, frame)(sec, nsec, *arrays)
-            assert [r.tobytes() for r in got] == [
-                enc._rosbags_js(names, int(sec[i]), int(nsec[i]), *(a[i] for a in arrays),
-                                frame_id=frame) for i in range(5)]
-    assert enc.fallbacks == []
+    runs = JointStateDecoder().decode_block(raw["/j"][1])      # one length, two layouts
+    assert [(js.name, nsec.tolist(), js.position.tolist()) for _, nsec, js in runs] == \
+        [(("a",), [1], [[1.0]]), (("b",), [2], [[2.0]])]
+    (sec, nsec, js), = JointStateDecoder().decode_block(raw["/k"][1])
+    assert (js.frame_id, nsec.tolist(), js.position.tolist(), js.velocity.shape,
+            js.effort.tolist()) == ("base", [1, 5], [[1.0, 2.0], [5.0, 6.0]], (2, 0),
+                                    [[3.0, 4.0], [7.0, 8.0]])
 
 
 def test_a_failed_background_write_is_raised_and_the_bag_removed(tmp_path, monkeypatch):

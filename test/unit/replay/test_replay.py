@@ -51,7 +51,7 @@ METRIC_FIELDS = {
     "settle_time_rule", "tolerance", "convergence_time_s", "convergence_time_definition",
     "observer_start_s", "truth_topic", "errors", "errors_note", "update_time_us",
     "observer_update_time_us", "replay_speed_x_realtime", "replay_speed_definition", "timing_s",
-    "reader", "serializer_fallbacks", "diagnostics_levels", "final_status",
+    "reader", "decoded_by_rosbags", "diagnostics_levels", "final_status",
     "observer_diagnostics",
 }
 
@@ -165,7 +165,7 @@ def test_metrics_json_fields_and_values(run, sim):
     t = m["timing_s"]
     assert t["replay_total"] >= t["runner"] > 0
     assert m["replay_speed_x_realtime"] == pytest.approx(m["bag_duration_s"] / t["replay_total"])
-    assert m["reader"] == "MCAP fast path" and m["serializer_fallbacks"] == []
+    assert m["reader"] == "MCAP fast path" and m["decoded_by_rosbags"] == 0
     assert m["final_status"]["message"].startswith("converged")
     assert "closed-loop poles" in m["observer_diagnostics"]
 

@@ -16,6 +16,7 @@ from fto_ros.replay.streams import read_inputs
 from fto_ros.runner import Runner
 from fto_ros.runner.params_file import load_params_files
 from fto_ros.runner.plant_files import params_files
+from fto_ros.runner.sources import make_source
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -43,9 +44,10 @@ def _bag(path: Path) -> Path:
 
 def test_every_sample_has_a_status_and_the_rows_are_the_accepted_ones(tmp_path):
     runner = Runner(load_params_files(params_files(ROOT / "config" / "dc_motor_luenberger.yaml")))
-    inp = read_inputs(_bag(tmp_path / "junk"), runner, "/observer_node")
-    ev = E.order_events(inp.streams)
-    rows = plan_rows(runner, ev, inp.streams)
+    source = make_source(runner)
+    inp = read_inputs(_bag(tmp_path / "junk"), runner, "/observer_node", source)
+    ev = E.order_events(inp.streams, {t.key: t.rank for t in source.topics})
+    rows = plan_rows(source, ev, inp.streams)
     obs = runner.observer
     blocks = []
     period = 10 ** 8
@@ -62,7 +64,7 @@ def test_every_sample_has_a_status_and_the_rows_are_the_accepted_ones(tmp_path):
             assert ev.t[stop] >= boundary > ev.t[stop - 1] if stop > start else True
         assert stop - start <= 128
     status = np.concatenate([b.status for b in blocks])
-    assert status.size == len(inp.streams.meas[1])              # one per sample, in order
+    assert status.size == inp.streams.times("measured_output").size              # one per sample, in order
     assert int((status == ACCEPTED).sum()) == runner.accepted
     assert Counter(r for b in blocks for r in b.reasons) == runner.rejected
     assert int((status == REJECTED).sum()) == sum(runner.rejected.values())

@@ -1,5 +1,5 @@
 """The replay's fast paths: its raw MCAP reader against BagReader, the BagReader fallback
-giving the same replay, every sample rejected, and the float-array codec against rosbags."""
+giving the same replay, and every sample rejected (the codec against rosbags: test/unit/core/test_cdr.py)."""
 from __future__ import annotations
 
 import importlib
@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from fto_ros.bag import BagReader, BagWriter
-from fto_ros.bag.cdr import Encoders, decode_float_arrays
 from fto_ros.bag.mcap_scan import NotFast, read_raw
+from fto_ros.core.cdr import FloatDecoder
 from fto_ros.replay import ReplayError, replay
 from replay_bags import LUENBERGER, NS, read_topic
 from replay_bags import sim, bad_bag  # noqa: F401 (fixtures)
@@ -24,12 +24,13 @@ def test_fast_reader_matches_bagreader(bad_bag):
     topics = [f"{NS}/measured_output", f"{NS}/input", f"{NS}/true_state"]
     fast = read_raw(Path(bad_bag), topics)
     with BagReader(bad_bag) as b:
-        ts = b._typestore
         for topic in topics:
             ref = [(t, msg) for _, t, msg in b.messages([topic])]
             t_fast, payloads = fast[topic]
             assert t_fast.tolist() == [t for t, _ in ref]
-            vals = decode_float_arrays(payloads, ts)
+            dec = FloatDecoder()                     # mixed lengths: message by message
+            vals = [dec.decode(p) for p in payloads]
+            assert len(vals) == len(ref)
             for v, (_, msg) in zip(vals, ref):
                 np.testing.assert_array_equal(np.asarray(v, dtype=float), msg.data)
 
@@ -71,22 +72,3 @@ def test_all_samples_rejected(sim, tmp_path):
     assert m["errors"] is None and "no accepted samples" in m["errors_note"]
     assert m["final_status"]["level"] == "WARN"
     assert (tmp_path / "out" / "replay.png").stat().st_size > 0
-
-
-def test_float_array_codec_matches_rosbags():
-    from fto_ros.bag.reader import jazzy_typestore
-    ts = jazzy_typestore()
-    enc = Encoders(ts)
-    for n in range(5):
-        for labels in (None, [f"x{i}" for i in range(n)], ["a"] * n):
-            x = np.linspace(-1.0, 2.0, n)
-            raw = enc.float_array(n, labels)(x)
-            assert raw == enc._rosbags_f64(x, labels)
-            assert decode_float_arrays([raw], ts) == [x.tolist()]
-            assert decode_float_arrays([raw, raw], ts) == [x.tolist()] * 2
-    assert enc.fallbacks == []
-    for frame in ("", "base_link", "odom_1"):
-        js = enc.joint_state(["a", "joint_12"], (2, 0, 2), frame)
-        assert js(5, 7, [1.0, 2.0], [], [3.0, 4.0]) == enc._rosbags_js(
-            ["a", "joint_12"], 5, 7, [1.0, 2.0], [], [3.0, 4.0], frame_id=frame)
-    assert enc.fallbacks == []

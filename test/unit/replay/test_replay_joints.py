@@ -1,7 +1,7 @@
 """The replay in the per-joint mode (``joints``): one JointState in, one out per sample by
-name (runner/joints.py's OutputPlan), the truth a JointState mapped by name, errors per
-joint and over all joints; the outputs are those of the node's path (``process_joints``
-message by message) bit for bit, and one joint's junk leaves the others untouched."""
+name (the per-joint source's plan, runner/sources/plan.py), the truth a JointState mapped
+by name, errors per joint and over all joints; the outputs are those of the node's path
+(the source's rows of one payload at a time, ``process_rows``) bit for bit, and one joint's junk leaves the others untouched."""
 from __future__ import annotations
 
 import json
@@ -15,8 +15,10 @@ from fto_ros.bag import BagReader, BagWriter
 from fto_ros.core.reasons import CODE
 from fto_ros.replay.replay import replay
 from fto_ros.runner import Runner
-from fto_ros.runner.intake import JointIntake, joint_sample
-from fto_ros.runner.joints import OutputPlan
+from fto_ros.bag.mcap_scan import read_raw
+from fto_ros.core.cdr import JointStateDecoder
+from fto_ros.runner import loop as L
+from fto_ros.runner.sources import make_source
 from fto_ros.runner.params_file import load_params_files
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -59,22 +61,29 @@ def _bag(path: Path) -> Path:
 
 
 def _node_path(bag: Path):
-    """What the node's path gives message by message: process_joints of joint_sample, and
-    the OutputPlan's JointState of each."""
-    flat = load_params_files(PARAMS, "observer_node")
-    runner = Runner(flat)
-    s = runner.settings
-    intake = JointIntake(runner.joints, s["joint_states.output_fields"],
-                         s["joint_states.input_fields"], runner.observer.n_inputs)
-    plan = OutputPlan(runner)
+    """What the node does message by message: the per-joint source's rows of each raw
+    payload alone, Runner.process_rows, and the plan's estimated_joint_states bytes."""
+    runner = Runner(load_params_files(PARAMS, "observer_node"))
+    source = make_source(runner)
+    i = next(k for k, sp in enumerate(source.plan.specs) if sp.topic == "estimated_joint_states")
+    dec = JointStateDecoder()
+    t_log, payloads = read_raw(bag, ["/arm/joint_states"])["/arm/joint_states"]
     out = []
-    with BagReader(bag) as r:
-        for _, t_ns, msg in r.messages(["/arm/joint_states"]):
-            t, _, y, u, refused, _ = joint_sample(intake, msg, s, t_ns * 1e-9, 1)
-            res = runner.process_joints(t, y, u, refused)
-            names, pos, vel, eff = plan.message(res)
-            if names:
-                out.append((names, pos, vel, eff))
+    for t_ns, payload in zip(t_log.tolist(), payloads):
+        one = np.array([t_ns], np.int64)
+        rows = source.rows("joint_states", (payload,), one, one, one * 1e-9)
+        if rows.py_reasons:                      # refused before the runner, by name
+            for why in rows.py_reasons.values():
+                runner.reject(why)
+            continue
+        status, x, w, c = runner.process_rows(rows.kind, rows.t, rows.values, rows.pre)
+        s = int(rows.srow[0])
+        ok = status[s] == L.OUTPUT
+        if ok.any():
+            ns = int(rows.stamp_ns[0])
+            js = dec.decode(source.plan.encode_one(i, ns // 10 ** 9, ns % 10 ** 9, x[s], w[s],
+                                                   c[s], ok))
+            out.append((list(js.name), js.position, js.velocity, js.effort))
     return runner, out
 
 

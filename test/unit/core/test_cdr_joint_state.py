@@ -1,4 +1,4 @@
-"""runner/joint_state_cdr.py against rclpy's own (de)serialisation, the reference (no DDS).
+"""core/cdr.py's JointState codec against rclpy's own (de)serialisation, the reference (no DDS).
 
 Every decoded field must equal what ``rclpy.serialization.deserialize_message`` makes of
 the same bytes (names, stamp, frame_id, the three arrays, including arrays shorter than
@@ -13,7 +13,7 @@ import pytest
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import JointState
 
-from fto_ros.runner.joint_state_cdr import CDR_LE, JointStateDecoder, JointStateEncoder
+from fto_ros.core.cdr import CDR_LE, JointStateDecoder, JointStateEncoder, stamp_ns
 
 
 def _msg(names, pos, vel, eff, sec=0, nanosec=0, frame_id=""):
@@ -218,18 +218,19 @@ def test_decode_block_splits_runs_by_layout():
     payloads = [serialize_message(m) for m in msgs]
     dec = JointStateDecoder()
     runs = dec.decode_block(payloads)
-    assert [len(stamps) for stamps, _ in runs] == [3, 1, 3]
+    assert [len(sec) for sec, _, _ in runs] == [3, 1, 3]
     flat = []
-    for stamps, js in runs:
-        for i in range(len(stamps)):
-            flat.append((int(stamps[i]), js.name, js.position[i], js.velocity[i], js.effort[i]))
+    for sec, nsec, js in runs:
+        for i in range(len(sec)):
+            flat.append((int(stamp_ns(sec[i], nsec[i])), js.name, js.position[i], js.velocity[i],
+                         js.effort[i]))
     assert len(flat) == len(msgs)
     for (ns, name, p, v, e), m in zip(flat, msgs):
         assert ns == m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
         assert list(name) == list(m.name)
         for got, want in ((p, m.position), (v, m.velocity), (e, m.effort)):
             assert np.array_equal(got, np.array(want, dtype=np.float64))
-    assert runs[0][1].sec == 0 and runs[2][1].sec == 3
+    assert runs[0][2].sec == 0 and runs[2][2].sec == 3
     assert dec.parsed == 2 and dec.fast == 5     # the first layout remembered for the last run
     with pytest.raises(ValueError):
         dec.decode_block(payloads[:2] + [payloads[2][:20]])

@@ -1,5 +1,5 @@
-"""Which publisher a data topic's samples are taken from, and how many of its messages
-never reached the observer.
+"""Which publisher owns a data topic (its samples are taken from it), and how many of its
+messages never reached the observer.
 
 rclpy 7.1.6 does not pass the publisher's GID with a message (its message info holds the
 source and receipt timestamps and the publication sequence number only), so a publisher
@@ -39,7 +39,7 @@ SECOND_SOURCE = "second_source"
 SOURCE_CHANGE = "source_change"
 
 
-class SourceTracker:
+class TopicOwner:
     """One data topic's owner and its losses (see the module docstring)."""
 
     def __init__(self, count_publishers: Callable[[], int], max_gap: float, jump_threshold: float):
