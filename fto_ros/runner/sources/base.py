@@ -22,7 +22,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ...core.cdr import JointStateArrays
-from ...core.errors import DecodeError
+from ...core.errors import DecodeError, UsageError
 from ...core.reasons import CODE
 from .. import loop as L
 
@@ -127,7 +127,7 @@ class Source:
         received (the node's clock at receipt, -1 if it has none yet; the replay: the log
         time), ``sent_ns`` (M,) the sender's time (DDS source timestamp; the log time),
         ``clock`` (M,) s the time a header stamp is checked against (None: not checked)."""
-        raise NotImplementedError
+        raise UsageError(f"{type(self).__name__} does not define rows")
 
     # -- decoding with the fallback ----------------------------------------------------
     def _fallback(self, payload, msgtype: str, key: str):

@@ -70,7 +70,8 @@ def test_dc_motor_linear_forms_and_models_as_text():
 DERIVATION_PLANT = {"single_delay": DC_PLANT, "prescribed_time": DC_PLANT, "luenberger": DC_PLANT,
                     "hosm": DC_PLANT, "newton_inversion": DC_PLANT, "ekf": DC_PLANT,
                     "global_norm": PENDULUM, "high_gain": PENDULUM, "joint_kalman": PENDULUM,
-                    "track": None, "external_torque": None, "momentum_observer": None}
+                    "track": None, "external_torque": None, "momentum_observer": None,
+                    "arm_kalman": None}
 
 
 @pytest.mark.parametrize("type_name", sorted(REGISTRY))
@@ -274,7 +275,7 @@ TUNING = {
     "joint_kalman": {"joint_kalman.order": 2, "joint_kalman.bandwidth": [5.0],
                      "joint_kalman.encoder_noise": [1e-3], "joint_kalman.sample_period": 0.01},
     # an arm family's plant is its URDF, never the plant block (observers/arm_base.py)
-    "external_torque": None, "momentum_observer": None,
+    "external_torque": None, "momentum_observer": None, "arm_kalman": None,
 }
 
 
