@@ -16,22 +16,22 @@ Measured per driven joint (every figure from the bags this run simulates):
 - velocity: the RMS error of the backward difference of the stream's positions over its
   stamps, (q_k - q_k-1) / (s_k - s_k-1), against the true velocity at the actual instant
   (rad/s, every received message but the first);
-- torques through runner/torque_loop.py's TorqueLoop exactly as the external-torque node
-  runs it (URDF as given, fingers locked at 0.02 m, window T = 60 ms, momentum observer
-  K = 50/s on backward-difference velocities, collision bound 1e-2 per hour, calibrated over
-  the first 2 s of estimates): the fraction of received samples with a window estimate,
-  restarts, tau_ext RMS error in free motion (t >= 0.5 s, outside [start, end + 0.3 s) of
-  each contact; Nm) of the window estimator and of the momentum observer, detection delays
-  (ms after each contact's start; the window: the node's detector; the momentum observer:
-  the same rule, its residual over ||M_i,:(q)||, calibrated on [0.5, 2.5] s), false alarms.
-  Stamps are fed as recorded (plus 1 s: a real stream never has stamp 0) and, for jittered
-  conditions, snapped to the 1 kHz grid as a user would do by hand ("grid").
+- torques through the arm families as the node and the replay run them (benchmarks/arm_runs.py:
+  built by the Runner from the node's parameters, fed every received message through the
+  runner's JointState intake and process_block on the stamps as recorded plus 1 s, the
+  fingers' positions from the message): ``external_torque`` (window T = 60 ms) and
+  ``momentum_observer`` (K = 50/s), each with its own contact detection (false-alarm bound
+  1e-2 per hour): the fraction of received samples with an estimate, tau_ext RMS error in
+  free motion (t >= 0.5 s, outside each contact and the 0.3 s after it; Nm), the delay of
+  each push (ms after its start; a joint's contact flag rising), false alarms.
+
+The BEFORE tables of docs/arm_class.md were measured with the earlier torque pipeline
+(runner/torque_loop.py, removed); this script measures the families that replaced it.
 
     PYTHONPATH=. python benchmarks/arm_class.py --out DIR [--seeds 1,2] [--duration 15]
         [--conditions clean,jitter,...] [--reuse] [--json FILE]
 
-Importable: simulate_condition, score_velocity, score_torque (later helpers reuse them for
-the AFTER numbers).
+Importable: simulate_condition, score_velocity, score_torque.
 """
 from __future__ import annotations
 
@@ -68,12 +68,10 @@ CONDITIONS = {
     "model+friction": MISMATCH,
     "all": JITTER + LOSS + MISMATCH,
 }
-#: the torque loop's settings (the node's parameters), the fingers locked mid-range
-TORQUE_PARAMS = {"plant.urdf": str(URDF), "plant.joints": ARM, "plant.locked_joints": FINGERS,
-                 "plant.locked_positions": [0.02, 0.02], "sample_period": 1.0 / RATE,
-                 "external_torque.momentum_gain": 50.0}
-FREE_START, AFTER_CONTACT, GMO_CALIBRATION = 0.5, 0.3, (0.5, 2.5)
-STAMP_OFFSET_NS = 1_000_000_000
+#: the families measured (flat parameters beside the URDF and the joints)
+FAMILIES = {"external_torque": {"external_torque.window": 0.06},
+            "momentum_observer": {"momentum_observer.gain": 50.0}}
+STAMP_OFFSET_S = 1.0                 # a real stream never has stamp 0
 
 
 def simulate_condition(name: str, seed: int, out_dir, duration: float = DURATION,
@@ -106,96 +104,21 @@ def score_velocity(run) -> np.ndarray:
 
 
 def contact_windows(meta) -> list[tuple[float, float]]:
+    """(start, end) s of each contact in the bag's metadata."""
     return [(c["t"], c["t"] + c["duration"]) for c in meta.get("contacts", [])]
 
 
-def free_mask(t, windows) -> np.ndarray:
-    free = t >= FREE_START
-    for a, b in windows:
-        free &= ~((t >= a) & (t < b + AFTER_CONTACT))
-    return free
-
-
-def _detections(event_times, windows, calibrated_from: float):
-    """(delay in ms per contact (inf: missed), false alarms)."""
-    delays = []
-    for a, b in windows:
-        hits = [t for t in event_times if a <= t < b + AFTER_CONTACT]
-        delays.append(1e3 * (min(hits) - a) if hits else math.inf)
-    false = sum(1 for t in event_times if t >= calibrated_from
-                and not any(a <= t < b + AFTER_CONTACT for a, b in windows))
-    return delays, false
-
-
-def run_torque_loop(run, grid: bool = False, params=None):
-    """Feed every received message to a TorqueLoop (the node's path); returns (window
-    estimates, momentum estimates: (N, 7), NaN where none; detection times (actual time of
-    the sample); the loop). The TorqueLoop was removed on integ2 (the arm families run on the
-    runner now): imported here, so the rest of this module stays importable."""
-    from fto_ros.runner.torque_loop import TorqueLoop
-    from fto_ros.runner.torque_settings import build
-    loop = TorqueLoop(build(dict(TORQUE_PARAMS, **(params or {}))))
-    c = arm_columns(run)
-    N = run.t.size
-    E, G = np.full((N, len(c)), np.nan), np.full((N, len(c)), np.nan)
-    stamps = run.stamp_ns
-    if grid:
-        h_ns = round(1e9 / RATE)
-        stamps = np.round(stamps / h_ns).astype(np.int64) * h_ns
-    names = list(run.names)
-    events = []
-    for k in range(N):
-        res = loop.process(int(stamps[k]) + STAMP_OFFSET_NS, names, run.q_measured[k],
-                           run.effort[k])
-        if res is None:
-            continue
-        if res.tau_ext is not None:
-            E[k] = res.tau_ext
-        if res.momentum is not None:
-            G[k] = res.momentum
-        if res.collision is not None:
-            events.append(run.t[k])
-    return E, G, events, loop
-
-
-def _gmo_detections(run, G, model):
-    """The momentum observer's detection times under the window's rule (module doc)."""
-    from fto_ros.arm.collision import CollisionDetector
-    det = CollisionDetector(G.shape[1], rate=RATE, false_alarms_per_hour=1e-2,
-                            calibration=GMO_CALIBRATION[1] - GMO_CALIBRATION[0])
-    c = arm_columns(run)
-    events = []
-    for k in np.flatnonzero((run.t >= GMO_CALIBRATION[0]) & np.all(np.isfinite(G), axis=1)):
-        scale = np.linalg.norm(model.mass_matrix(run.q_measured[k, c]), axis=1)
-        if det.update(run.t[k], G[k], scale) is not None:
-            events.append(run.t[k])
-    return events, det.sigma is not None
-
-
-def score_torque(run, meta, grid: bool = False, params=None) -> dict:
-    """The window estimator and the momentum observer through the TorqueLoop (module doc)."""
-    E, G, events, loop = run_torque_loop(run, grid, params)
-    c = arm_columns(run)
-    windows = contact_windows(meta)
-    free = free_mask(run.t, windows)
-    truth = run.tau_ext[:, c]
-    out = {"received": int(run.t.size), "samples": int(meta.get("samples", run.t.size)),
-           "restarts": int(sum(loop.restarts.values())),
-           "rejected": int(sum(loop.rejected.values()))}
-    for key, est in (("window", E), ("momentum", G)):
-        has = np.all(np.isfinite(est), axis=1)
-        err = (est - truth)[free & has]
-        out[key] = {"estimate_fraction": float(has.mean()),
-                    "free_rms": (np.sqrt(np.mean(err ** 2, axis=0)).tolist() if len(err)
-                                 else [math.nan] * len(c))}
-    cal = loop.detector.sigma is not None
-    delays, false = _detections(events, windows, 0.0)
-    out["window"].update(delays_ms=delays, false_alarms=false, calibrated=cal)
-    g_events, g_cal = _gmo_detections(run, G, loop.model)
-    delays, false = _detections(g_events, windows, GMO_CALIBRATION[1])
-    out["momentum"].update(delays_ms=delays, false_alarms=false, calibrated=g_cal)
-    out["peak_tau_ext"] = [float(np.abs(truth[(run.t >= a) & (run.t < b)]).max(initial=0.0))
-                           for a, b in windows]
+def score_torque(run, meta, params=None) -> dict:
+    """Each family of FAMILIES through the runner (module doc): arm_runs.score's figures."""
+    from benchmarks.arm_runs import arm_runner, feed, score
+    out = {}
+    for family, own in FAMILIES.items():
+        runner = arm_runner(family, ARM, urdf=URDF,
+                            **{k.replace(".", "__"): v for k, v in {**own, **(params or {})}.items()})
+        res = score(feed(runner, run, STAMP_OFFSET_S), run, meta, arm_columns(run))
+        res["restarts"] = int(sum(runner.resets.values()))
+        res["rejected"] = int(sum(runner.rejected.values()))
+        out[family] = res
     return out
 
 
@@ -203,9 +126,7 @@ def measure(name: str, seed: int, out_dir, duration: float = DURATION, reuse: bo
     bag = simulate_condition(name, seed, out_dir, duration, reuse)
     run, meta = read_arm_bag(bag)
     res = {"condition": name, "seed": seed, "bag": str(bag), "lost": meta["stream"]["lost"],
-           "velocity_rms": score_velocity(run).tolist(), "stamps": score_torque(run, meta)}
-    if "jitter" in name or "all" == name:
-        res["grid"] = score_torque(run, meta, grid=True)
+           "velocity_rms": score_velocity(run).tolist(), "torque": score_torque(run, meta)}
     return res
 
 
@@ -232,37 +153,28 @@ def tables(results: list[dict]) -> str:
     for name, rs in by.items():
         out.append(f"| {name} | " + " | ".join(_fmt(x) for x in _pool(
             [r["velocity_rms"] for r in rs])) + " |")
-    for est, label in (("momentum", "momentum observer K = 50/s"),
-                       ("window", "window estimator T = 60 ms")):
-        out += ["", f"**{label} through TorqueLoop: tau_ext RMS error in free motion (Nm), per "
-                    f"joint**", "", head[:-1] + "| samples with an estimate |", rule + "---|"]
+    for family, label in (("momentum_observer", "momentum_observer K = 50/s"),
+                          ("external_torque", "external_torque T = 60 ms")):
+        out += ["", f"**{label}: tau_ext RMS error in free motion (Nm), per joint**", "",
+                head[:-1] + "| samples with an estimate |", rule + "---|"]
         for name, rs in by.items():
-            for mode in ("stamps", "grid"):
-                if mode not in rs[0]:
-                    continue
-                frac = np.mean([r[mode][est]["estimate_fraction"] for r in rs])
-                row = _pool([r[mode][est]["free_rms"] for r in rs])
-                out.append(f"| {name}{' (stamps snapped to the grid)' if mode == 'grid' else ''}"
-                           f" | " + " | ".join(_fmt(x) for x in row) + f" | {100 * frac:.1f} % |")
+            frac = np.mean([r["torque"][family]["estimate_fraction"] for r in rs])
+            row = _pool([r["torque"][family]["rms"] for r in rs])
+            out.append(f"| {name} | " + " | ".join(_fmt(x) for x in row)
+                       + f" | {100 * frac:.1f} % |")
     out += ["", "**Detections (ms after each push; seeds in order) and false alarms**", "",
-            "| condition | peak |tau_ext| of the pushes (Nm) | window: delays | window: false "
-            "alarms | window: calibrated | momentum: delays | momentum: false alarms | restarts "
-            "| lost |", "|---|---|---|---|---|---|---|---|---|"]
+            "| condition | external_torque: delays | false alarms | momentum_observer: delays "
+            "| false alarms | restarts (external_torque) | lost |", "|---|---|---|---|---|---|---|"]
     for name, rs in by.items():
-        for mode in ("stamps", "grid"):
-            if mode not in rs[0]:
-                continue
-            cells = [f"{name}{' (grid)' if mode == 'grid' else ''}",
-                     "; ".join("/".join(f"{p:.1f}" for p in r[mode]["peak_tau_ext"]) for r in rs)]
-            for est in ("window", "momentum"):
-                cells.append("; ".join("/".join("missed" if not np.isfinite(d) else f"{d:.0f}"
-                                                for d in r[mode][est]["delays_ms"]) for r in rs))
-                cells.append("; ".join(str(r[mode][est]["false_alarms"]) for r in rs))
-                if est == "window":
-                    cells.append("; ".join(str(r[mode][est]["calibrated"]).lower() for r in rs))
-            cells.append("; ".join(str(r[mode]["restarts"]) for r in rs))
-            cells.append("; ".join(str(r["lost"]) for r in rs))
-            out.append("| " + " | ".join(cells) + " |")
+        cells = [name]
+        for family in ("external_torque", "momentum_observer"):
+            cells.append("; ".join("/".join("missed" if not np.isfinite(d) else f"{d:.0f}"
+                                            for d in r["torque"][family]["delays_ms"])
+                                   for r in rs))
+            cells.append("; ".join(str(r["torque"][family]["false_alarms"]) for r in rs))
+        cells.append("; ".join(str(r["torque"]["external_torque"]["restarts"]) for r in rs))
+        cells.append("; ".join(str(r["lost"]) for r in rs))
+        out.append("| " + " | ".join(cells) + " |")
     return "\n".join(out)
 
 

@@ -24,11 +24,6 @@ delay of each push (a joint's contact flag rising), false alarms. And the parame
 the simulator's truth (bag metadata): friction, the base parameters (the true arm's base
 combinations, fto_ros/arm/identify_base.py), the payload.
 
-benchmarks/arm_class.py (simulate_condition, ARM, URDF) is imported through
-:func:`_arm_class`: while it still imports the deleted torque pipeline (runner/torque_loop.py,
-runner/torque_settings.py, arm/collision.py's CollisionDetector), placeholders that raise
-when used stand in for those names in this process only; simulate_condition needs none.
-
     PYTHONPATH=. python benchmarks/identify_arm.py --out DIR [--reuse] [--json FILE]
 """
 from __future__ import annotations
@@ -47,6 +42,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks.arm_class import ARM, URDF, simulate_condition  # noqa: E402
 from benchmarks.arm_runs import feed, score as score_fed  # noqa: E402
 from fto_ros.arm.identify_base import moving_bodies, structural_base  # noqa: E402
 from fto_ros.arm.identify_params import prior_model, read  # noqa: E402
@@ -55,38 +51,6 @@ from fto_ros.cli.identify import main as identify_main  # noqa: E402
 from fto_ros.models.arm_urdf import perturbed  # noqa: E402
 from fto_ros.runner.params_file import load_params_files  # noqa: E402
 from fto_ros.runner.runner import Runner  # noqa: E402
-
-
-def _arm_class():
-    """benchmarks/arm_class.py (module doc: the placeholders while it imports deleted
-    modules)."""
-    import importlib
-    import types
-    try:
-        return importlib.import_module("benchmarks.arm_class")
-    except ImportError as e:
-        print(f"(benchmarks/arm_class.py does not import: {e}; placeholders stand in for the "
-              "deleted torque pipeline's names)", file=sys.stderr)
-
-    def gone(*_a, **_k):
-        raise RuntimeError("deleted with the old torque pipeline")
-    from fto_ros.arm import collision
-    if not hasattr(collision, "CollisionDetector"):
-        collision.CollisionDetector = gone
-    for name, attr in (("fto_ros.runner.torque_loop", "TorqueLoop"),
-                       ("fto_ros.runner.torque_settings", "build")):
-        if name not in sys.modules:
-            try:
-                importlib.import_module(name)
-            except ImportError:
-                mod = types.ModuleType(name)
-                setattr(mod, attr, gone)
-                sys.modules[name] = mod
-    return importlib.import_module("benchmarks.arm_class")
-
-
-_AC = _arm_class()
-ARM, URDF, simulate_condition = _AC.ARM, _AC.URDF, _AC.simulate_condition
 
 OTHER_TRAJECTORY = ["--amplitude", "0.4,0.4,0.6,0.3,0.5,0.6,0.7",
                     "--period", "3.7,4.3,3.1,5.2,2.7,3.9,2.9"]
