@@ -120,6 +120,19 @@ def slope(t, q, first, count, n, out):
 
 
 @jit
+def push_history(st, oh, ohq, n, s, q):
+    """The stamp s and positions q into a five-sample history held in st (stamps at oh,
+    positions at ohq, n per sample; oldest first): what extrapolation_residual reads."""
+    for l in range(4):
+        st[oh + l] = st[oh + l + 1]
+        for i in range(n):
+            st[ohq + l * n + i] = st[ohq + (l + 1) * n + i]
+    st[oh + 4] = s
+    for i in range(n):
+        st[ohq + 4 * n + i] = q[i]
+
+
+@jit
 def extrapolation_residual(t, q, n, out):
     """Per joint, the residual of the cubic extrapolation of q[4] at t[4] from the samples
     0..3, over sqrt(1 + sum of its coefficients squared): white position noise of standard

@@ -53,14 +53,35 @@ def scalar_filter(m: float, R: float, sd: float, sa: float, h: float, steps: int
     return Kg, (np.eye(3) - np.outer(Kg, [1.0, 0.0, 0.0])) @ F
 
 
-def noise_response(m, R, sd, sa, h, steps: int = 20000) -> np.ndarray:
-    """d's response (Nm) to one unit (rad) of encoder noise at sample 0, one joint."""
-    Kg, A = scalar_filter(m, R, sd, sa, h)
-    x = Kg.copy()
-    out = np.empty(steps)
-    for i in range(steps):
-        out[i] = x[2]
-        x = A @ x
+def noise_responses(M, R, sd, sa, h, steps: int = 3000) -> np.ndarray:
+    """(steps, n, n): d_i's response (Nm) to one unit (rad) of encoder noise on joint j at
+    sample 0, of the whole filter at the inertia M (its steady state: the kernel's F, Q)."""
+    n = M.shape[0]
+    W = np.linalg.inv(M)
+    N3 = 3 * n
+    A = np.zeros((N3, N3))
+    A[:n, n:2 * n] = np.eye(n)
+    A[n:2 * n, 2 * n:] = W
+    F = np.eye(N3) + A * h + A @ A * h * h / 2
+    WS, I = W * sd, np.eye(n)
+    WSW = WS @ W.T
+    Q = np.block([[WSW * h ** 5 / 20 + np.diag(sa) * h ** 3 / 3,
+                   WSW * h ** 4 / 8 + np.diag(sa) * h ** 2 / 2, WS * h ** 3 / 6],
+                  [WSW * h ** 4 / 8 + np.diag(sa) * h ** 2 / 2,
+                   WSW * h ** 3 / 3 + np.diag(sa) * h, WS * h ** 2 / 2],
+                  [WS.T * h ** 3 / 6, WS.T * h ** 2 / 2, np.diag(sd) * h]])
+    H = np.hstack([I, np.zeros((n, 2 * n))])
+    P = np.diag(np.concatenate([R, np.ones(2 * n)]))
+    K = np.zeros((N3, n))
+    for _ in range(steps):
+        Pp = F @ P @ F.T + Q
+        K = Pp[:, :n] @ np.linalg.inv(Pp[:n, :n] + np.diag(R))
+        P = Pp - K @ Pp[:n, :]
+    closed = (np.eye(N3) - K @ H) @ F
+    X, out = K.copy(), np.empty((steps, n, n))
+    for k in range(steps):
+        out[k] = X[2 * n:]
+        X = closed @ X
     return out
 
 
@@ -116,14 +137,14 @@ class ArmKalmanFilter(ArmObserver):
         p0 = np.concatenate([np.full(n, cfg["initial_velocity_std"] ** 2),
                              np.full(n, cfg["initial_disturbance_std"] ** 2)])
         self._p0v = np.concatenate([np.zeros(n), p0])
-        rowsum = np.linalg.norm(self.model.mass_matrix(np.zeros(n)), axis=1)
-        gn, corr = np.empty(n), 0.0
-        for i in range(n):
-            resp = noise_response(diag[i], self.variance[i], self.sd[i], self.sa[i], h)
-            gn[i] = np.linalg.norm(resp) / rowsum[i]
-            r0 = resp @ resp
-            lags = min(resp.size - 1, 4000)
-            corr = max(corr, sum((resp[:-l] @ resp[l:] / r0) ** 2 for l in range(1, lags)))
+        M0 = self.model.mass_matrix(np.zeros(n))
+        resp = noise_responses(M0, self.variance, self.sd, self.sa, h)
+        gn = np.sqrt(np.sum(resp ** 2, axis=(0, 2))) / np.linalg.norm(M0, axis=1)
+        corr = 0.0
+        for i in range(n):                        # the calibration's effective samples
+            r = resp[:, i, i]
+            r0 = r @ r
+            corr = max(corr, sum((r[:-l] @ r[l:] / r0) ** 2 for l in range(1, r.size - 1)))
         self.noise_gain = gn
         rows, nb = rows_block(self.model)
         det = self._detector_consts(float(corr))
@@ -140,6 +161,7 @@ class ArmKalmanFilter(ArmObserver):
         meaning = {"commanded_no_gravity": kernel.NO_GRAVITY}.get(self.meaning, 0)
         ints = (n, k, nb, meaning, offs[9], *offs[1:9], offs[10], SC, SDET, EST, UI, EXTRA)
         ic = K.layout_ic(2 * n, EST, n, UI, DT.extras_size(n), EXTRA, extra_ints=ints)
+        self._step = None
         self._build_kernel(c, ic, np.zeros(1), SDET + DT.state_size(n))
         DT.init(self._st, SDET, c, int(offs[10]), n)
         self.reset()
@@ -168,18 +190,22 @@ class ArmKalmanFilter(ArmObserver):
 
     def step_response(self, elapsed: float) -> float:
         """The fraction of a step of torque d shows ``elapsed`` s later (the one-joint filter
-        at joint 1's inertia at the neutral pose)."""
-        n, h = self.n_joints, self.period
-        m = float(self.model.mass_matrix(np.zeros(n))[0, 0])
-        Kg, A = scalar_filter(m, self.variance[0], self.sd[0], self.sa[0], h)
-        steps = int(max(elapsed, 0.0) / h)
-        # a torque step u on the plant: the filter's input is its position response
-        F = np.array([[1.0, h, h * h / (2 * m)], [0.0, 1.0, h / m], [0.0, 0.0, 1.0]])
-        truth, x = np.array([0.0, 0.0, 1.0]), np.zeros(3)
-        for _ in range(steps):
-            truth = F @ truth
-            x = A @ x + Kg * truth[0]
-        return float(x[2])
+        at joint 1's inertia at the neutral pose; computed once over 1 s, then looked up)."""
+        if self._step is None:
+            n, h = self.n_joints, self.period
+            m = float(self.model.mass_matrix(np.zeros(n))[0, 0])
+            Kg, A = scalar_filter(m, self.variance[0], self.sd[0], self.sa[0], h)
+            # a torque step on the plant: the filter's input is its position response
+            F = np.array([[1.0, h, h * h / (2 * m)], [0.0, 1.0, h / m], [0.0, 0.0, 1.0]])
+            truth, x = np.array([0.0, 0.0, 1.0]), np.zeros(3)
+            out = [0.0]
+            for _ in range(int(round(1.0 / h))):
+                truth = F @ truth
+                x = A @ x + Kg * truth[0]
+                out.append(float(x[2]))
+            self._step = np.array(out)
+        k = int(max(elapsed, 0.0) / self.period)
+        return float(self._step[min(k, self._step.size - 1)])
 
     def diagnostics(self):
         out = super().diagnostics()

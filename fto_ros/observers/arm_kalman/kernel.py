@@ -170,18 +170,6 @@ def _correct(nx, c, ic, y):
 
 
 @jit
-def _history(st, sc, n, k, s, q):
-    ox, op, ot, opas, oh, ohq, end = offsets(n, k)
-    for l in range(4):
-        st[sc + oh + l] = st[sc + oh + l + 1]
-        for i in range(n):
-            st[sc + ohq + l * n + i] = st[sc + ohq + (l + 1) * n + i]
-    st[sc + oh + 4] = s
-    for i in range(n):
-        st[sc + ohq + 4 * n + i] = q[i]
-
-
-@jit
 def _restart(st, c, ic):
     sc = ic[I_SC]
     n = ic[I_N]
@@ -247,7 +235,7 @@ def _sample(st, nx, c, ic, wk, s, h, y, u):
         g = dyn.gravity(_rows(c, ic), n, y, pas)
         for i in range(n):
             nx[sc + ot + i] += g[i]
-    _history(nx, sc, n, k, s, y)
+    WN.push_history(nx, sc + oh, sc + ohq, n, s, y)
     if count >= 5:
         e = np.empty(n)
         WN.extrapolation_residual(nx[sc + oh:sc + oh + 5], nx[sc + ohq:sc + ohq + 5 * n]

@@ -56,19 +56,6 @@ def offsets(n, k):
 
 
 @jit
-def _history(st, sc, n, k, s, q):
-    """The stamp and positions into the five-sample history (oldest first)."""
-    oq, ov, op0, oi, ob, ot, opl, om, opas, oh, ohq, end = offsets(n, k)
-    for l in range(4):
-        st[sc + oh + l] = st[sc + oh + l + 1]
-        for i in range(n):
-            st[sc + ohq + l * n + i] = st[sc + ohq + (l + 1) * n + i]
-    st[sc + oh + 4] = s
-    for i in range(n):
-        st[sc + ohq + 4 * n + i] = q[i]
-
-
-@jit
 def _terms(st, c, ic, q, pas, v):
     """M and p = M v (p_last) at (q, v) into the state; 0, or 1 when a term is not finite."""
     n, k = ic[I_N], ic[I_K]
@@ -145,7 +132,7 @@ def _sample(st, nx, c, ic, wk, s, h, y, u):
         nx[sc + ov + i] = v[i]
         nx[ic[I_EST] + i] = y[i]
         nx[ic[I_EST] + n + i] = v[i]
-    _history(nx, sc, n, k, s, y)
+    WN.push_history(nx, sc + oh, sc + ohq, n, s, y)
     if count > 1 and h > 1.5 * c[C_PERIOD]:
         nx[sc + BRIDGED] += 1.0
         nx[sc + MAX_BRIDGED] = max(nx[sc + MAX_BRIDGED], h)
