@@ -343,9 +343,9 @@ class ObserverCore(ArmCore, ObserverServices):
         recv = self._stamper.receipt_ns(info)
         # a header stamp is checked against the wall clock, which cannot lag the data; on sim
         # time not at all (/clock comes from the player of the data): the runner's rules
-        clock = None if self._sim_time else (time.time_ns() * 1e-9,)
-        rows = self._source.rows(key, (payload,), (-1 if recv is None else recv,),
-                                 (info.get("source_timestamp", 0),), clock)
+        clock = None if self._sim_time else np.array([time.time_ns() * 1e-9])
+        rows = self._source.rows(key, (payload,), np.array([-1 if recv is None else recv]),
+                                 np.array([info.get("source_timestamp", 0)]), clock)
         if not self._from_owner(key, info, int(rows.owner_ns[0])):
             return
         for why in rows.py_reasons.values():        # refused before the runner, by name

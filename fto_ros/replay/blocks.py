@@ -21,7 +21,7 @@ import numpy as np
 
 from ..core.reasons import REJECTIONS
 from ..runner import loop as L
-from ..runner.sources.base import PYTHON
+from ..runner.sources.base import PYTHON, Rows as SourceRows
 from . import events as E
 
 #: per-sample status codes (per joint)
@@ -29,19 +29,13 @@ ACCEPTED, IS_HELD, REJECTED, NO_SAMPLE = 0, 1, 2, 3
 
 
 @dataclass
-class Rows:
-    """The runner's event rows of a whole replay (see the module doc)."""
+class Rows(SourceRows):
+    """The runner's event rows of a whole replay (see the module doc): a source's Rows of
+    E events (each a message of one of the source's topics, in time order), whose
+    ``py_reasons`` is the list of the reasons of the rows ``py_rows`` (sorted) of kind
+    PYTHON."""
 
-    kind: np.ndarray          # (R,) int8: loop.MEASUREMENT, INPUT, PAIRED, REFUSED or PYTHON
-    t: np.ndarray             # (R,) s
-    values: np.ndarray        # (R, J, width)
-    pre: np.ndarray           # (R, J) int16: the intake's code (0: none, -1: not this joint's)
-    first: np.ndarray         # (E + 1,): the rows of event e are first[e]:first[e + 1]
-    srow: np.ndarray          # (E,): the row whose status is the sample's (-1: not a sample)
-    irow: np.ndarray          # (E,): the input row a sample is paired with (-1: none)
-    stamp_ns: np.ndarray      # (E,) int64: a sample's time (log time, or a JointState's stamp)
-    py_rows: np.ndarray       # sorted rows of kind PYTHON
-    py_reasons: list          # their reasons
+    py_rows: np.ndarray = None
 
 
 @dataclass
@@ -76,10 +70,11 @@ def plan_rows(source, ev: E.Events, streams) -> Rows:
     first = np.zeros(ev.t.size + 1, np.int64)
     np.cumsum(count, out=first[1:])
     R = int(first[-1])
+    stamps = ev.t.astype(np.int64)
     out = Rows(np.zeros(R, np.int8), np.zeros(R), np.zeros((R, J, width)),
                np.zeros((R, J), np.int16), first, np.full(ev.t.size, -1, np.int64),
-               np.full(ev.t.size, -1, np.int64), ev.t.astype(np.int64).copy(),
-               np.zeros(0, np.int64), [])
+               np.full(ev.t.size, -1, np.int64), stamps.copy(), stamps,
+               np.zeros(ev.t.size, bool), [], np.zeros(0, np.int64))
     py = {}
     for sel, m, rows in batches:
         src, dst, n = rows.first[m], first[sel], count[sel]
