@@ -214,13 +214,44 @@ ARM_BOUNDS = {
     ('arm7_contact_tool', 'arm7_joint_kalman'): (0.0007, 0.24),  # 0.000467, 0.162
     ('arm7_contact_tool', 'arm7_track_joint_kalman'): (0.00069, 0.24),  # 0.000458, 0.159
 }
+#: the arm's external-torque families (and arm_kalman's disturbance torque): the worst joint's
+#: tau_ext RMS error in free motion (replay/arm_metrics.py), 1.5x what was measured
+#: (2026-12-05, measured in the comment); every contact detected within CONTACT_DELAY_MS, no
+#: false alarm, an estimate on >= 99 % of the samples
+TORQUE_BOUNDS = {
+    ('arm7_contact_link6', 'arm7_external_torque'): 0.066,  # 0.0439
+    ('arm7_contact_tool', 'arm7_external_torque'): 0.064,  # 0.0425
+    ('arm7_free', 'arm7_external_torque'): 0.060,  # 0.0398
+    ('arm7_contact_link6', 'arm7_momentum_observer'): 4.6,  # 3.08
+    ('arm7_contact_tool', 'arm7_momentum_observer'): 4.8,  # 3.23
+    ('arm7_free', 'arm7_momentum_observer'): 4.8,  # 3.18
+    ('arm7_contact_link6', 'arm7_arm_kalman'): 0.31,  # 0.204
+    ('arm7_contact_tool', 'arm7_arm_kalman'): 0.29,  # 0.195
+    ('arm7_free', 'arm7_arm_kalman'): 0.29,  # 0.196
+}
+#: the issue's bar for a contact of the 10 Nm class (measured: 4-10 ms)
+CONTACT_DELAY_MS = 15.0
 ARM = [p for p in EXAMPLES if (p.bag.name, p.config.stem) in ARM_BOUNDS]
-EXAMPLES = [p for p in EXAMPLES if p not in ARM]
+TORQUE = [p for p in EXAMPLES if (p.bag.name, p.config.stem) in TORQUE_BOUNDS]
+EXAMPLES = [p for p in EXAMPLES if p not in ARM and p not in TORQUE]
 
 
 def test_every_example_pair_has_a_bound():
     assert {(p.bag.name, p.config.stem) for p in EXAMPLES} == set(EXAMPLE_BOUNDS)
     assert {(p.bag.name, p.config.stem) for p in ARM} == set(ARM_BOUNDS)
+    assert {(p.bag.name, p.config.stem) for p in TORQUE} == set(TORQUE_BOUNDS)
+
+
+@pytest.mark.parametrize("pair", TORQUE, ids=lambda p: f"{p.bag.name}-{p.config.stem}")
+def test_arm_torque_replays_within_bounds(pair, tmp_path):
+    m = replay(pair.bag, pair.params, tmp_path / "out", progress=False, plot=False)
+    assert m["samples_rejected"] == 0 and m["samples_accepted"] == m["sample_count"] > 1000
+    a = m["arm"]
+    assert a["free_rms_worst_Nm"] <= TORQUE_BOUNDS[(pair.bag.name, pair.config.stem)], a
+    assert a["false_alarms"] == 0 and a["estimate_fraction"] >= 0.99, a
+    assert len(a["contacts"]) == (0 if pair.bag.name == "arm7_free" else 1), a["contacts"]
+    for c in a["contacts"]:
+        assert c["delay_ms"] is not None and c["delay_ms"] <= CONTACT_DELAY_MS, c
 
 
 @pytest.mark.parametrize("pair", ARM, ids=lambda p: f"{p.bag.name}-{p.config.stem}")
