@@ -8,8 +8,11 @@ Reading (every topic of every committed bag, to decoded values: Float64MultiArra
 floats, JointState fields, the Clock payload):
 
 - ``fto_ros``: bag/mcap_scan.py's indexed path (metadata.yaml, the MCAP summary and
-  message indexes, every topic cut out and decoded at once with numpy), what the replay
-  reads with;
+  message indexes, every topic cut out at once), decoded with core/cdr.py as the replay's
+  sources do (runner/sources/): a Float64MultiArray topic as one block
+  (``decode_float_block``, else ``FloatDecoder`` per message), a JointState topic as runs
+  of one layout with (k, n) arrays (``JointStateDecoder.decode_block``), rosbags'
+  deserialiser for what the codec does not take (the replay's fallback);
 - ``fto_ros scan``: the same code walking every record with ``struct`` (the replay's reader
   before; still the fallback for files without indexes);
 - ``rosbags``: ``BagReader`` (rosbags' Reader, ``deserialize_cdr`` per message), opening
@@ -47,10 +50,10 @@ from pathlib import Path
 import numpy as np
 
 from fto_ros.bag import BagReader, BagWriter
-from fto_ros.bag.cdr import (decode_float_arrays, decode_float_block, decode_joint_states,
-                             deserialize)
 from fto_ros.bag.mcap_scan import fast_info, read_raw
-from fto_ros.bag.reader import jazzy_typestore
+from fto_ros.bag.reader import deserialize, jazzy_typestore
+from fto_ros.core.cdr import FloatDecoder, JointStateDecoder, decode_float_block
+from fto_ros.core.errors import DecodeError
 
 ROOT = Path(__file__).resolve().parent.parent
 F64, JS, CLOCK = ("std_msgs/msg/Float64MultiArray", "sensor_msgs/msg/JointState",
@@ -79,26 +82,53 @@ def _values(msgtype: str, msg):
     return (msg.clock.sec, msg.clock.nanosec) if msgtype == CLOCK else None
 
 
+class _Runs(list):
+    """A JointState topic as JointStateDecoder.decode_block's runs: (sec, nanosec, arrays)."""
+
+
+def _each(decode, payloads, msgtype: str, where: str, ts) -> list:
+    """Per message: ``decode(payload)``, else rosbags' deserialiser (BagError if it fails)."""
+    out = []
+    for k, p in enumerate(payloads):
+        try:
+            out.append(decode(p))
+        except DecodeError:
+            out.append(deserialize(ts, p, msgtype, where, k))
+    return out
+
+
 def read_fto(bag: Path, indexed: bool = True) -> dict:
     info, files = fast_info(bag)
     raw = read_raw(bag, list(info.topics), files, indexed=indexed)
-    ts = None
+    ts = jazzy_typestore()
     out = {}
     for topic, (t, payloads) in raw.items():
-        msgtype = info.topics[topic].msgtype
+        msgtype, where = info.topics[topic].msgtype, f"{bag}: topic {topic}"
         if msgtype == F64:
-            block = decode_float_block(payloads)
-            vals = block if block is not None else decode_float_arrays(
-                payloads, ts or jazzy_typestore())
-        elif msgtype == JS:
-            vals = decode_joint_states(payloads)
+            vals = decode_float_block(payloads)
             if vals is None:
-                ts = ts or jazzy_typestore()
-                vals = [deserialize(ts, p, JS, topic, k) for k, p in enumerate(payloads)]
+                vals = _each(FloatDecoder().decode, payloads, F64, where, ts)
+        elif msgtype == JS:
+            dec = JointStateDecoder()
+            try:
+                vals = _Runs(dec.decode_block(payloads))
+            except DecodeError:      # one odd payload: each on its own
+                vals = _each(dec.decode, payloads, JS, where, ts)
         else:
             vals = payloads
         out[topic] = (t, vals)
     return out
+
+
+def _messages_of(vals) -> list:
+    """read_fto's values of a topic, one item per message (runs cut into messages)."""
+    if isinstance(vals, np.ndarray):
+        return vals.tolist()
+    if not isinstance(vals, _Runs):
+        return vals
+    return [js._replace(sec=int(sec[i]), nanosec=int(nsec[i]), position=js.position[i],
+                        velocity=js.velocity[i], effort=js.effort[i])
+            for sec, nsec, js in vals for i in range(sec.size)]
 
 
 def read_rosbags(bag: Path) -> dict:
@@ -143,14 +173,14 @@ def same_as(ref: dict, got: dict, types: dict, decoded: bool = True) -> bool:
         if topic not in got:
             return False
         gt, gv = got[topic]
-        if list(map(int, gt)) != t.tolist() or len(gv) != len(msgs):
+        rows = _messages_of(gv)
+        if list(map(int, gt)) != t.tolist() or len(rows) != len(msgs):
             return False
         if not decoded:
             continue
         msgtype = types[topic]
         if msgtype == CLOCK:
             continue                      # copied as raw bytes by the replay: compared below
-        rows = gv.tolist() if isinstance(gv, np.ndarray) else gv
         for m, g in zip(msgs, rows):
             ok = (_values(msgtype, m) == tuple(g)) if msgtype == F64 and not hasattr(g, "data") \
                 else _values(msgtype, m) == _values(msgtype, g)

@@ -135,7 +135,7 @@ def exact_fld(example: int, t: np.ndarray):
 
 def run_hosm(cfg: dict, t, y):
     from fto_ros.core.params import resolve
-from fto_ros.observers.base import SampleRejected
+    from fto_ros.observers.base import SampleRejected
     from fto_ros.observers.hosm import HosmObserver
     obs = HosmObserver(resolve(HosmObserver.PARAMS, cfg, "hosm."))
     X = np.full((len(t), obs.n_states), np.nan)

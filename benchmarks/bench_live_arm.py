@@ -28,8 +28,13 @@ load average at each round's start.  Kinds:
 - ``dc_motor_joints``: the same model as a one-joint arm (joints: [joint_a1]).
 
 ``--micro``: the per-message stages of the per-joint node in one process (no DDS, no
-executor): numpy decode of the payload, the intake by name, the runner call, the output
-fields and the CDR encoding, for 7 joints.
+executor), for 7 joints, through the code the node runs (nodes/observer_core.py): the
+source's rows of one payload (runner/sources/joints.py: the numpy decode and the intake
+by name together; the decode alone, core/cdr.py's JointStateDecoder, is shown beside it
+and is part of that figure), the runner call (``process_rows``) and the output plan's
+``estimated_joint_states`` message (runner/sources/plan.py ``encode_one``: the output
+fields and the CDR encoding together, which were two columns before the plan did both).
+The sum is rows + runner + output.
 """
 from __future__ import annotations
 
@@ -48,6 +53,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import bench_node_io as io  # noqa: E402
+from fto_ros.runner import loop as L  # noqa: E402
 
 CONFIG = ROOT / "config"
 OBSERVER = [sys.executable, "-m", "fto_ros.nodes.observer_node", "--ros-args"]
@@ -81,52 +87,52 @@ KINDS = {
 
 def micro(n: int = 5000, repeats: int = 5) -> str:
     """In-process cost of each stage of the per-joint node's message path (7 joints)."""
+    from fto_ros.core.cdr import JointStateDecoder, JointStateEncoder
     from fto_ros.runner import Runner
-    from fto_ros.runner.intake import JointIntake
-    from fto_ros.runner.joint_outputs import JointOutputPlan
-    from fto_ros.runner.joint_state_cdr import JointStateDecoder, JointStateEncoder
     from fto_ros.runner.params_file import load_params_files
+    from fto_ros.runner.sources import make_source
 
-    lines = ["| tuning | decode (us) | intake (us) | runner (us) | output fields (us) | "
-             "encode (us) | sum (us) |", "|---|---|---|---|---|---|---|"]
+    lines = ["| tuning | decode alone (us) | source rows: decode + intake (us) | runner (us) | "
+             "output: fields + CDR (us) | sum (us) |", "|---|---|---|---|---|---|"]
     names = io.joint_names(7)
+    enc = JointStateEncoder(names)
     for tuning in ("hosm", "luenberger"):
         runner = Runner(load_params_files([CONFIG / "arm7_plant.yaml", CONFIG / f"arm7_{tuning}.yaml"],
                                           "observer_node"))
-        s = runner.settings
-        obs = runner.observer
-        intake = JointIntake(runner.joints, s["joint_states.output_fields"],
-                             s["joint_states.input_fields"], obs.n_inputs)
-        plan = JointOutputPlan(runner.joints, runner.roles, obs.state_names, ["d"],
-                               runner.convergence_fields)
-        rows = np.arange(7)
-        out_enc = JointStateEncoder(names, (7, 7, 7 if plan.has_effort else 0))
-        payloads = [JointStateEncoder(names).encode(k // 1000, (k % 1000) * 10**6,
-                                                     0.1 * np.sin(k * 1e-3 + np.arange(7)),
-                                                     np.zeros(7), np.ones(7)) for k in range(n)]
+        source = make_source(runner)
+        plan = source.plan
+        out = next(i for i, spec in enumerate(plan.specs) if spec.topic == "estimated_joint_states")
         dec = JointStateDecoder()
+        t0 = int(time.time())
         best = {}
         for r in range(repeats):
-            times = dict.fromkeys(("decode", "intake", "runner", "fields", "encode"), 0.0)
+            # each repeat on a timeline of its own (stamps 10 s on: the runner restarts),
+            # received at its stamp (the node's clock check passes)
+            stamps = [(t0 + 10 * r) * 10**9 + k * 10**6 for k in range(n)]
+            payloads = [enc.encode(ns // 10**9, ns % 10**9, 0.1 * np.sin(k * 1e-3 + np.arange(7)),
+                                   np.zeros(7), np.ones(7)) for k, ns in enumerate(stamps)]
+            times = dict.fromkeys(("decode", "rows", "runner", "output"), 0.0)
             pc = time.perf_counter
-            for k, p in enumerate(payloads):
+            for ns, p in zip(stamps, payloads):
+                recv, clock = np.array([ns]), np.array([ns * 1e-9])
                 a = pc()
-                js = dec.decode(p)
+                dec.decode(p)
                 b = pc()
-                y, u, refused = intake.take_message(js)
+                rows = source.rows("joint_states", (p,), recv, recv, clock)
                 c = pc()
-                t = r * 10.0 + k * 1e-3          # each repeat on a timeline of its own
-                status, x, ui, conv = runner.process_joints_arrays(t, y, u, refused)
+                status, x, ui, conv = runner.process_rows(rows.kind, rows.t, rows.values, rows.pre)
                 d = pc()
-                pos, vel, eff = plan.fields(rows, x[-1], ui[-1])
+                s = int(rows.srow[0])
+                plan.encode_one(out, ns // 10**9, ns % 10**9, x[s], ui[s], conv[s],
+                                status[s] == L.OUTPUT)
                 e = pc()
-                out_enc.encode(js.sec, js.nanosec, pos, vel, eff)
-                f = pc()
-                for key, dt in zip(times, (b - a, c - b, d - c, e - d, f - e)):
+                for key, dt in zip(times, (b - a, c - b, d - c, e - d)):
                     times[key] += dt
             for key, v in times.items():
                 best[key] = min(best.get(key, np.inf), 1e6 * v / n)
-        total = sum(best.values())
+        if runner.accepted == 0:
+            raise RuntimeError(f"arm7_{tuning}: no sample accepted; the micro measured nothing")
+        total = best["rows"] + best["runner"] + best["output"]
         lines.append(f"| {tuning} | " + " | ".join(f"{best[k]:.1f}" for k in best) + f" | {total:.1f} |")
     return "\n".join(lines)
 

@@ -28,7 +28,8 @@ Variants (executor / intake / output):
   the reference (the node's QoS: best effort keep last 100 in, reliable keep last 10 out);
 - ``echo_events``: the same on rclpy.experimental.EventsExecutor;
 - ``msg_arrays``: single, message in -> numpy arrays -> one reused message out (the
-  arrays assigned as array.array, as nodes/outputs.py does);
+  arrays assigned as array.array: how the node published before it sent the output
+  plan's CDR, nodes/publisher.py);
 - ``raw_in``: single, raw intake decoded with numpy (nodes/fast_io.py) -> reused message out;
 - ``raw``: single, raw intake -> pre-serialised CDR out (fast_io.JointStatePublisher);
 - ``raw_events``: the same on the EventsExecutor;
@@ -38,7 +39,11 @@ Variants (executor / intake / output):
 
 ``--qos``: the echo and raw_events at each rate with the node's input QoS best effort
 keep last 1 / 10 / 100 and reliable keep last 100 (the publisher: reliable keep last 100).
-``--micro``: in-process cost of decoding and encoding one message each way (no DDS).
+``--micro``: in-process cost of decoding and encoding one message each way (no DDS):
+rclpy's and rosbags' deserialisers against core/cdr.py's JointStateDecoder (one payload,
+and a block of 10), rclpy's assign + serialise against core/cdr.py's JointStateEncoder.
+(The column "out: bag/cdr.py template" is gone: bag/cdr.py's template encoder and the
+node's encoder are one codec now, core/cdr.py.)
 Every DDS process: ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, ROS_DOMAIN_ID ``--domain``.
 """
 from __future__ import annotations
@@ -97,7 +102,7 @@ def run_node(variant: str, joints: int, in_qos: str, stats_path: str) -> int:
     from sensor_msgs.msg import JointState
 
     from fto_ros.nodes.fast_io import JointStateIntake, JointStatePublisher, create_executor, spin
-    from fto_ros.nodes.outputs import OUT_QOS
+    from fto_ros.nodes.publisher import OUT_QOS
 
     executor_kind, intake_kind, output = VARIANTS[variant]
     rclpy.init()
@@ -400,15 +405,14 @@ def micro(repeats: int = 5, n: int = 5000) -> str:
     from rosbags.typesys import Stores, get_typestore
     from sensor_msgs.msg import JointState
 
-    from fto_ros.bag.cdr import Encoders
-    from fto_ros.runner.joint_state_cdr import JointStateDecoder, JointStateEncoder
+    from fto_ros.core.cdr import JointStateDecoder, JointStateEncoder
 
     ts = get_typestore(Stores.ROS2_JAZZY)
     lines = [f"In-process, us per message, best of {repeats} x {n}; load average (1 min) "
              f"{os.getloadavg()[0]:.1f}", "",
              "| joints | in: rclpy deserialize_message | in: rosbags deserialise | in: numpy decoder | "
              "in: numpy block of 10 (per msg) | out: assign + rclpy serialise | "
-             "out: bag/cdr.py template | out: numpy encoder |", "|---|---|---|---|---|---|---|---|"]
+             "out: numpy encoder |", "|---|---|---|---|---|---|---|"]
     for joints in (7, 1):
         names = joint_names(joints)
         vals = np.arange(joints, dtype=np.float64)
@@ -421,7 +425,6 @@ def micro(repeats: int = 5, n: int = 5000) -> str:
         stream = itertools.cycle(payloads)
         dec = JointStateDecoder()
         enc = JointStateEncoder(names)
-        tmpl = Encoders(ts).joint_state(names, (joints,) * 3)
         out = JointState(name=names)
 
         def assign_serialise():
@@ -437,7 +440,6 @@ def micro(repeats: int = 5, n: int = 5000) -> str:
             (lambda: dec.decode(next(stream)), 1),
             (lambda: dec.decode_block(next(blocks)), 10),
             (assign_serialise, 1),
-            (lambda: tmpl(1, 2, vals, vals, vals), 1),
             (lambda: enc.encode(1, 2, vals, vals, vals), 1),
         ]
         cells = [f"{1e6 * min(timeit.repeat(f, number=n, repeat=repeats)) / n / per:.2f}"

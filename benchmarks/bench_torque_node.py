@@ -101,7 +101,7 @@ def echo(count_file: str) -> None:
 
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-    from fto_ros.nodes.outputs import OUT_QOS
+    from fto_ros.nodes.publisher import OUT_QOS
     from fto_ros.runner.settings import SETTINGS
     depth = next(p.default for p in SETTINGS if p.name == "qos.depth")
     IN_QOS = QoSProfile(depth=depth, history=HistoryPolicy.KEEP_LAST,     # the node's input

@@ -19,7 +19,7 @@ sys.path.insert(0, str(ROOT))
 
 from fto_ros.bag.reader import read_messages  # noqa: E402
 from fto_ros.observers import REGISTRY  # noqa: E402
-from fto_ros.observers.base import resolve  # noqa: E402
+from fto_ros.core.params import resolve  # noqa: E402
 from fto_ros.runner.settings import load_params_file  # noqa: E402
 
 ESCAPE = 3.8541
