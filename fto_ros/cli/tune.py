@@ -144,9 +144,7 @@ def _runner(flat, knob_, values, joints):
 
 def tune(args: argparse.Namespace) -> dict[str, Any]:
     """Search each joint's value; the table to print, the params and the file's comment."""
-    from ..replay import events as E
-    from ..replay.blocks import plan_rows
-    from ..replay.streams import read_inputs
+    from ..replay.run import bag_rows
     from ..replay.topics import ReplayError, node_fqn
     from ..runner import joints as JX
     from ..runner.params_file import load_params_files, parse_override
@@ -158,9 +156,7 @@ def tune(args: argparse.Namespace) -> dict[str, Any]:
     joints = list(base.joints)
     flats = JX.per_joint(flat, joints) if joints else [flat]
     kn = T.knob(base, flats)
-    inp = read_inputs(Path(args.bag), base, node_fqn(args.node_name))
-    ev = E.order_events(inp.streams)
-    rows = plan_rows(base, ev, inp.streams)
+    _, _, rows = bag_rows(base, Path(args.bag), node_fqn(args.node_name))
     keep = T.heldout_mask(rows) if args.score == "heldout" else None
     after = args.after if args.after is not None else \
         (base.settings["metrics.settle_time"] or 0.5)

@@ -120,6 +120,17 @@ class _RosbagsFallback:
         return deserialize(shared_typestore(), payload, msgtype, where, 0)
 
 
+def bag_rows(runner: Runner, bag_path: Path, fqn: str):
+    """(source, inputs, rows): the runner's rows of every message ``runner`` reads from the
+    bag, planned as the replay plans them (fto-tune scores candidates on them)."""
+    fallback = _RosbagsFallback(bag_path)
+    source = make_source(runner, fallback)
+    inp = read_inputs(bag_path, runner, fqn, source)
+    fallback.roles = inp.roles
+    ev = E.order_events(inp.streams, {t.key: t.rank for t in source.topics})
+    return source, inp, plan_rows(source, ev, inp.streams)
+
+
 def _run(runner: Runner, bag_path: Path, out_dir: Path, fqn: str, overwrite: bool,
          progress: bool, custom: dict[str, str], protect: tuple = ()) -> _Run:
     """Read the bag, drive the runner, write the output bag (the timed part); the output
