@@ -5,11 +5,11 @@ plant, or each joint), as ``~/state_estimate_stamped`` names their states.
 """
 from __future__ import annotations
 
-import math
-
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
+
+from ..core.params import check_vector
 
 
 class ObserverServices:
@@ -45,10 +45,11 @@ class ObserverServices:
                "name at least one of " + ", ".join(keys) if not given else None)
         limit = runner.settings["limits.estimate"]
         for key, x in given.items():       # every row checked before any is taken
-            if why is None and len(x) != n:
-                why = f"{key}: {len(x)} value(s) for {n} state(s)"
-            elif why is None and not all(math.isfinite(v) and abs(v) <= limit for v in x):
-                why = f"{key}: a value is not finite or beyond limits.estimate"
+            bad = None if why is not None else check_vector(x, n, "state")
+            if bad is not None:            # the runner's reasons (Runner.set_state)
+                why = f"{key}: {bad} ({len(x)} value(s) for {n} state(s), finite)"
+            elif why is None and not all(abs(v) <= limit for v in x):
+                why = f"{key}: state_implausible (beyond limits.estimate {limit:g})"
         if why is None:
             for key, x in given.items():
                 runner.set_state(x, keys.index(key))
