@@ -195,6 +195,11 @@ class ArmObserver(KernelObserver):
     def _detection_time(self, size: float, threshold: float, sigma: float, miss: float) -> float:
         return detection_time(self.step_response, size, threshold, sigma, miss)
 
+    @property
+    def max_step(self) -> float:
+        """The longest step the family bridges (s): its gap rule's, set as ``_max_step``."""
+        return self._max_step
+
     def step_response(self, elapsed: float) -> float:
         """Fraction of a step of tau_ext shown ``elapsed`` s after it (the family's)."""
         raise UsageError(f"{type(self).__name__} does not define step_response")

@@ -167,10 +167,6 @@ class ArmKalmanFilter(ArmObserver):
         self.reset()
 
     @property
-    def max_step(self) -> float:
-        return self._max_step
-
-    @property
     def gap_tolerance(self) -> float:
         return math.nan
 

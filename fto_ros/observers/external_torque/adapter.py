@@ -3,7 +3,6 @@ kernel's arrays (observers/external_torque/kernel.py has the per-sample step;
 docs/external_torque.md the derivation).  ROS-free."""
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
@@ -105,10 +104,6 @@ class ExternalTorqueObserver(ArmObserver):
         self._build_kernel(c, ic, np.zeros(int(w[-1])), size)
         DT.init(self._st, SDET, c, int(offs[6]), n)
         self.reset()
-
-    @property
-    def max_step(self) -> float:
-        return self._max_step
 
     @property
     def guaranteed_time(self) -> float:

@@ -81,10 +81,6 @@ class MomentumObserverFamily(ArmObserver):
         DT.init(self._st, SDET, c, int(offs[6]), n)
         self.reset()
 
-    @property
-    def max_step(self) -> float:
-        return self._max_step
-
     def step_response(self, elapsed: float) -> float:
         return float(1.0 - math.exp(-self.gain * max(elapsed, 0.0)))
 
